@@ -1,0 +1,1 @@
+"""Keyframes, loop closures, the pose graph and trajectory metrics."""

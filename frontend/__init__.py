@@ -1,0 +1,1 @@
+"""Per-frame sensor work: logs, depth to 3D, plane filtering, the Kinect Obstacle Scan, scan-matching odometry."""

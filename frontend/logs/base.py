@@ -1,0 +1,98 @@
+"""The one interface every log adapter implements: summary info, and a streaming, time-ordered read."""
+
+from __future__ import annotations
+
+import heapq
+from abc import ABC, abstractmethod
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from frontend.records import Record
+
+
+@dataclass
+class TopicInfo:
+    name: str
+    type: str  # ROS 2 style, e.g. sensor_msgs/msg/LaserScan
+    count: int
+
+
+@dataclass
+class LogInfo:
+    """What `kosmap info` shows: format, time span and topics."""
+
+    path: Path
+    format: str
+    start_ns: int
+    end_ns: int
+    topics: list[TopicInfo]
+    truncated: bool = False
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def duration(self) -> float:
+        return max(0.0, (self.end_ns - self.start_ns) * 1e-9)
+
+    @property
+    def message_count(self) -> int:
+        return sum(t.count for t in self.topics)
+
+    def types(self) -> dict[str, str]:
+        return {t.name: t.type for t in self.topics}
+
+    def count(self, topic: str | None) -> int:
+        return next((t.count for t in self.topics if t.name == topic), 0)
+
+
+class LogReader(ABC):
+    """A log opened for reading. Use as a context manager; `warnings` collects non-fatal problems."""
+
+    format: str = ""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self.warnings: list[str] = []
+
+    @abstractmethod
+    def info(self) -> LogInfo:
+        """Format, time span and per-topic counts (from the index where the format has one)."""
+
+    @abstractmethod
+    def read(self, topics: Iterable[str] | None = None) -> Iterator[Record]:
+        """Yield records of the given topics (all known ones if None) in time order, in one pass.
+
+        Messages of types kosmap does not use are skipped. Memory stays flat in the log's length.
+        """
+
+    def _warn(self, text: str) -> None:
+        if text not in self.warnings:
+            self.warnings.append(text)
+
+    def close(self) -> None:  # noqa: B027 - adapters without resources need nothing
+        pass
+
+    def __enter__(self) -> LogReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def normalize_type(name: str) -> str:
+    """'sensor_msgs/LaserScan' (ROS 1) → 'sensor_msgs/msg/LaserScan' (ROS 2 / rosbags naming)."""
+    parts = name.split("/")
+    if len(parts) == 2:
+        return f"{parts[0]}/msg/{parts[1]}"
+    return name
+
+
+def reorder(records: Iterable[tuple[int, int, Record]], window_ns: int) -> Iterator[Record]:
+    """Sort a nearly ordered stream of (time, seq, record) with a bounded buffer of `window_ns`."""
+    heap: list[tuple[int, int, Record]] = []
+    for item in records:
+        heapq.heappush(heap, item)
+        while heap and heap[0][0] < item[0] - window_ns:
+            yield heapq.heappop(heap)[2]
+    while heap:
+        yield heapq.heappop(heap)[2]

@@ -1,0 +1,128 @@
+"""MCAP adapter: the `mcap` library finds and decompresses chunks, rosbags decodes CDR (or ROS 1) messages.
+
+mcap_ros2's own decoder walks arrays element by element in Python (~1000× slower on depth images;
+STACK.md), so only the container is read with `mcap`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator
+
+from mcap.exceptions import McapError
+from mcap.reader import NonSeekingReader, make_reader
+from rosbags.typesys import get_types_from_msg
+
+from frontend.errors import LogError
+from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
+from frontend.logs.convert import to_record, typestore
+
+_DAMAGE = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, __import__("struct").error)
+
+
+class McapLog(LogReader):
+    format = "MCAP"
+
+    def __init__(self, path) -> None:
+        super().__init__(path)
+        self._file = open(self.path, "rb")
+        self._summary = None
+        self.truncated = False
+        try:
+            self._summary = make_reader(self._file).get_summary()
+        except _DAMAGE:
+            self._summary = None
+        if self._summary is None or not self._summary.chunk_indexes and not self._summary.statistics:
+            # No summary: the file was cut off before its footer (or written without an index); read it linearly.
+            self.truncated = self._summary is None
+            self._summary = None
+        self._registered: set[tuple[int, str]] = set()
+
+    def close(self) -> None:
+        self._file.close()
+
+    # -- decoding --------------------------------------------------------------------------------------------------
+    def _decode(self, schema, channel, message):
+        if schema is None:
+            return None
+        msgtype = normalize_type(schema.name)
+        enc = channel.message_encoding
+        if enc not in ("cdr", "ros1"):
+            raise LogError(f"topic {channel.topic} in {self.path.name} is encoded as '{enc}'; kosmap reads ROS messages "
+                           f"(cdr or ros1 encoding): convert the log with the ROS tools")
+        ts = typestore(2 if enc == "cdr" else 1)
+        if msgtype not in ts.fielddefs and (schema.id, enc) not in self._registered:
+            try:
+                ts.register(get_types_from_msg(schema.data.decode(), msgtype))
+            except Exception:  # a schema rosbags cannot parse: the message type is then skipped
+                pass
+            self._registered.add((schema.id, enc))
+        if msgtype not in ts.fielddefs:
+            return None
+        msg = ts.deserialize_cdr(message.data, msgtype) if enc == "cdr" else ts.deserialize_ros1(message.data, msgtype)
+        return to_record(msg, msgtype, channel.topic)
+
+    def _linear(self, topics) -> Iterator[tuple]:
+        """Messages in file order from a stream without an index; stops, with a warning, at damage."""
+        self._file.seek(0)
+        n = 0
+        last = 0
+        # mcap's own log_time_order here would load the whole file: sort with a bounded window instead.
+        stream = NonSeekingReader(self._file, validate_crcs=True).iter_messages(topics=topics, log_time_order=False)
+        try:
+            for seq, item in enumerate(stream):
+                n += 1
+                last = max(last, item[2].log_time)
+                yield item[2].log_time, seq, item
+        except _DAMAGE:
+            self.truncated = True
+        if self.truncated and not self.warnings:
+            self._warn(f"{self.path.name} is truncated: read {n} messages up to t={last * 1e-9:.3f} s before "
+                                 f"the damage; re-record or repair it (`mcap recover`) to get the rest")
+
+    def _messages(self, topics=None) -> Iterator[tuple]:
+        if self._summary is None:
+            yield from reorder(self._linear(topics), window_ns=2_000_000_000)
+            return
+        self._file.seek(0)
+        reader = make_reader(self._file)
+        try:
+            yield from reader.iter_messages(topics=topics, log_time_order=True)
+        except _DAMAGE as e:
+            raise LogError(f"{self.path.name} is damaged inside ({type(e).__name__}: {e}); run `mcap doctor` on it") from e
+
+    # -- interface -------------------------------------------------------------------------------------------------
+    def info(self) -> LogInfo:
+        if self._summary is not None and self._summary.statistics is not None:
+            st = self._summary.statistics
+            counts = st.channel_message_counts
+            topics = [TopicInfo(ch.topic, normalize_type(self._summary.schemas[ch.schema_id].name)
+                                if ch.schema_id in self._summary.schemas else "(no schema)", counts.get(cid, 0))
+                      for cid, ch in sorted(self._summary.channels.items())]
+            return LogInfo(self.path, self.format, st.message_start_time, st.message_end_time, _merge(topics))
+        counts: dict[str, TopicInfo] = {}
+        start = end = None
+        for schema, channel, message in self._messages():
+            ti = counts.setdefault(channel.topic, TopicInfo(channel.topic, normalize_type(schema.name) if schema else "(no schema)", 0))
+            ti.count += 1
+            start = message.log_time if start is None else min(start, message.log_time)
+            end = message.log_time if end is None else max(end, message.log_time)
+        notes = ["truncated: the file ends before its summary; counts are of the messages before the damage"] if self.truncated else []
+        return LogInfo(self.path, self.format, start or 0, end or 0, list(counts.values()), self.truncated, notes)
+
+    def read(self, topics: Iterable[str] | None = None) -> Iterator:
+        wanted = None if topics is None else list(topics)
+        for schema, channel, message in self._messages(wanted):
+            rec = self._decode(schema, channel, message)
+            if rec is not None:
+                yield rec
+
+
+def _merge(topics: list[TopicInfo]) -> list[TopicInfo]:
+    """One entry per topic name (an MCAP may hold several channels on one topic)."""
+    out: dict[str, TopicInfo] = {}
+    for t in topics:
+        if t.name in out:
+            out[t.name].count += t.count
+        else:
+            out[t.name] = TopicInfo(t.name, t.type, t.count)
+    return list(out.values())

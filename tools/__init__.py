@@ -1,0 +1,1 @@
+"""Entry points: the `kosmap` CLI, the log simulator, converters and benchmarks."""

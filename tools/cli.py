@@ -1,0 +1,38 @@
+"""The `kosmap` command: parse arguments, call the core, print. Errors become one line and a non-zero exit.
+
+Each module in tools/commands/ adds its command(s) through `register(app)`, so commands live apart.
+"""
+
+from __future__ import annotations
+
+import importlib
+import pkgutil
+import sys
+
+import typer
+
+from frontend.errors import KosmapError
+from tools import commands
+
+app = typer.Typer(name="kosmap", no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+                  help="2D maps from depth-camera robot logs: FSPF+ planes, the Kinect Obstacle Scan, SLAM, map export and comparison.")
+
+for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+    importlib.import_module(f"tools.commands.{mod.name}").register(app)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the console script: usage errors are click's; our errors are one line, exit 2."""
+    try:
+        app(args=argv, prog_name="kosmap")  # standalone: click prints usage errors and exits
+    except KosmapError as e:
+        print(f"kosmap: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("kosmap: interrupted", file=sys.stderr)
+        return 130
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
