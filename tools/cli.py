@@ -25,6 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script: usage errors are click's; our errors are one line, exit 2."""
     try:
         app(args=argv, prog_name="kosmap")  # standalone: click prints usage errors and exits
+    except SystemExit as e:
+        return e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
     except KosmapError as e:
         print(f"kosmap: error: {e}", file=sys.stderr)
         return e.exit_code

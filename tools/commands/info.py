@@ -8,6 +8,7 @@ from typing import Annotated
 
 import typer
 
+from frontend.errors import TopicError
 from frontend.logs import LogInfo, detect_topics, open_log
 from frontend.records import CameraModel, DepthFrame
 from tools import options as O
@@ -18,6 +19,10 @@ def log_summary(path: Path, cfg) -> dict:
     with open_log(path) as log:
         info: LogInfo = log.info()
         det = detect_topics(info.types(), cfg.topics)
+        if not det.depth and not det.scan:
+            listed = ", ".join(f"{t.name} ({t.type})" for t in info.topics) or "none"
+            raise TopicError(f"{path.name} has no depth images and no laser scans (topics: {listed}); if they are "
+                             f"there under other names or types, pass --depth-topic / --scan-topic")
         cameras = {}
         for depth_topic in det.depth:
             want = [t for t in (det.info.get(depth_topic), depth_topic) if t]

@@ -1,0 +1,36 @@
+"""A small synthetic log of every record type, for round-trip and error tests."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transform, Transforms
+
+DEPTH = "/kinect2/sd/image_depth_rect"
+INFO = "/kinect2/sd/camera_info"
+
+
+def records(n: int = 5, seed: int = 0, width: int = 64, height: int = 48) -> list:
+    """Time-ordered records: tf_static, camera info, then depth (16UC1 and 32FC1), scans and odometry."""
+    rng = np.random.default_rng(seed)
+    t0 = 1_700_000_000_123_456_789  # a real epoch in ns: float seconds would lose the last digits
+    cam = CameraModel.from_fov(width, height, np.radians(70.6), np.radians(60), "kinect2_ir_optical_frame")
+    out = [
+        Transforms(t0, (Transform.from_xyz_rpy("base_link", "kinect2_ir_optical_frame", [0.1, 0, 1.0],
+                                               [-np.pi / 2, 0, -np.pi / 2], t0),
+                        Transform.from_xyz_rpy("base_link", "laser", [0.2, 0, 0.3], [0, 0, 0], t0)), True, "/tf_static"),
+        CameraModel(cam.width, cam.height, cam.K, np.array([0.1, -0.2, 0.0, 0.0, 0.01]), "plumb_bob", cam.frame_id, INFO, t0),
+    ]
+    for i in range(n):
+        t = t0 + (i + 1) * 33_333_333
+        img = rng.integers(0, 8000, (height, width), dtype=np.uint16)
+        out.append(DepthFrame(t, img, "16UC1", "kinect2_ir_optical_frame", DEPTH))
+        f = rng.random((height, width), dtype=np.float32) * 4
+        f[0, 0] = np.nan
+        out.append(DepthFrame(t + 1, f, "32FC1", "cam2_optical", "/cam2/depth"))
+        r = rng.random(1081).astype(np.float32) * 30
+        r[::7] = np.inf
+        out.append(Scan(t + 2, r, -2.356194490192345, 0.004363323129985824, 0.1, 30.0, "laser", "/scan",
+                        rng.random(1081).astype(np.float32)))
+        out.append(Odometry(t + 3, float(rng.normal()), float(rng.normal()), float(rng.uniform(-3, 3)), "odom", "base_link", "/odom"))
+    return out
