@@ -18,6 +18,9 @@ class GridConfig(StageConfig):
     p_hit: float = param(0.7, lo=0.5, hi=1.0, lo_open=True, doc="occupancy probability of a beam's end cell")
     p_miss: float = param(0.4, lo=0.0, hi=0.5, doc="occupancy probability of a cell a beam passes")
     no_return_clear: float = param(4.0, lo=0.0, doc="beams without return clear free space this far", unit="m")
+    max_range: float = param(0.0, lo=0.0, doc="returns beyond this range only clear free space up to it (0 = the scan's range_max)", unit="m")
+    p_min: float = param(0.12, lo=0.0, hi=0.5, lo_open=True, doc="log-odds clamp: a cell's probability never drops below this")
+    p_max: float = param(0.97, lo=0.5, hi=1.0, doc="log-odds clamp: a cell's probability never rises above this")
 
 
 @dataclass
@@ -48,3 +51,178 @@ class OccupancyGrid:
         """Map coordinates (N×2) of cell centres (origin yaw must be 0)."""
         return np.column_stack((self.origin[0] + (np.asarray(cols) + 0.5) * self.resolution,
                                 self.origin[1] + (np.asarray(rows) + 0.5) * self.resolution))
+
+    def world_of(self, cols: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Map coordinates (N×2) of cell centres, honouring the origin's yaw (maps from other tools may have one)."""
+        u = (np.asarray(cols, float) + 0.5) * self.resolution
+        v = (np.asarray(rows, float) + 0.5) * self.resolution
+        c, s = np.cos(self.origin[2]), np.sin(self.origin[2])
+        return np.column_stack((self.origin[0] + c * u - s * v, self.origin[1] + s * u + c * v))
+
+    def pixel_to_world(self) -> np.ndarray:
+        """3×3 affine taking (col, row, 1) of a cell's lower-left corner to map coordinates."""
+        c, s = np.cos(self.origin[2]), np.sin(self.origin[2])
+        r = self.resolution
+        return np.array([[c * r, -s * r, self.origin[0]], [s * r, c * r, self.origin[1]], [0.0, 0.0, 1.0]])
+
+
+# ---- log-odds grid from poses and scans ---------------------------------------------------------------------------
+
+def _logit(p: float) -> float:
+    return float(np.log(p / (1.0 - p)))
+
+
+def _compose(pose, mount) -> tuple[float, float, float]:
+    """pose ∘ mount for planar poses (x, y, yaw): the sensor's pose in the map frame."""
+    x, y, th = (float(v) for v in pose)
+    mx, my, mth = (float(v) for v in mount)
+    c, s = np.cos(th), np.sin(th)
+    return x + c * mx - s * my, y + s * mx + c * my, th + mth
+
+
+class GridBuilder:
+    """A streaming log-odds occupancy grid: `add(pose, scan)` per scan, then `to_occupancy()`.
+
+    Inverse sensor model as in Thrun et al., Probabilistic Robotics, Table 9.1/9.2: each scan adds
+    logit(p_miss) to every cell a beam passes and logit(p_hit) to the cell where it ends (a cell is
+    updated at most once per scan, a hit beating a miss), clamped to [logit(p_min), logit(p_max)].
+    Beams are traced with a vectorised DDA (8-connected, Bresenham-like). Beams without a return
+    (REP 117: +inf, or ≥ range_max) clear free space up to `no_return_clear`. The array grows in
+    blocks as scans reach beyond it, so memory is the map's, never the log's.
+    """
+
+    GROW = 64  # cells: growth granularity (and minimum margin) when a scan leaves the array
+
+    def __init__(self, config: GridConfig | None = None, mount=(0.0, 0.0, 0.0)) -> None:
+        self.config = config or GridConfig()
+        if self.config.p_min >= self.config.p_max:
+            from frontend.errors import ConfigError
+            raise ConfigError(f"config [grid] p_min = {self.config.p_min} must be below p_max = {self.config.p_max}")
+        self.mount = tuple(float(v) for v in mount)
+        self.res = float(self.config.resolution)
+        self.l_hit = _logit(self.config.p_hit)
+        self.l_miss = _logit(self.config.p_miss) if self.config.p_miss > 0 else _logit(self.config.p_min)
+        self.l_min, self.l_max = _logit(self.config.p_min), _logit(self.config.p_max)
+        self.log_odds = np.zeros((0, 0), np.float32)
+        self.seen = np.zeros((0, 0), bool)
+        self.c0 = self.r0 = 0  # global cell index (floor(x / res), floor(y / res)) of log_odds[0, 0]
+        self.n_scans = 0
+
+    # -- geometry --------------------------------------------------------------------------------------------------
+    def _ensure(self, cmin: int, rmin: int, cmax: int, rmax: int) -> None:
+        """Grow the arrays (in GROW-cell blocks, at least by half) so that cells [cmin..cmax]×[rmin..rmax] exist."""
+        h, w = self.log_odds.shape
+        if h and self.c0 <= cmin and self.r0 <= rmin and cmax < self.c0 + w and rmax < self.r0 + h:
+            return
+        g = self.GROW
+        if h == 0:
+            nc0, nr0, nc1, nr1 = cmin - g, rmin - g, cmax + g + 1, rmax + g + 1
+        else:
+            nc0, nr0, nc1, nr1 = self.c0, self.r0, self.c0 + w, self.r0 + h
+            if cmin < nc0:
+                nc0 = min(cmin - g, nc0 - w // 2)
+            if rmin < nr0:
+                nr0 = min(rmin - g, nr0 - h // 2)
+            if cmax >= nc1:
+                nc1 = max(cmax + g + 1, nc1 + w // 2)
+            if rmax >= nr1:
+                nr1 = max(rmax + g + 1, nr1 + h // 2)
+        lo = np.zeros((nr1 - nr0, nc1 - nc0), np.float32)
+        se = np.zeros(lo.shape, bool)
+        if h:
+            lo[self.r0 - nr0:self.r0 - nr0 + h, self.c0 - nc0:self.c0 - nc0 + w] = self.log_odds
+            se[self.r0 - nr0:self.r0 - nr0 + h, self.c0 - nc0:self.c0 - nc0 + w] = self.seen
+        self.log_odds, self.seen, self.c0, self.r0 = lo, se, nc0, nr0
+
+    def beams(self, pose, scan, mount=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Sensor position (2,), beam ends (N×2, map frame), whether each ends in a hit (N,): the beams to trace."""
+        sx, sy, sth = _compose(pose, self.mount if mount is None else mount)
+        r = np.asarray(scan.ranges, np.float64)
+        a = scan.angles + sth
+        cfg = self.config
+        hit = np.isfinite(r) & (r >= scan.range_min) & (r < scan.range_max)
+        no_return = (np.isposinf(r) | (np.isfinite(r) & (r >= scan.range_max)))  # REP 117; NaN / -inf / < min: ignored
+        length = np.where(hit, r, np.minimum(cfg.no_return_clear, scan.range_max) if cfg.no_return_clear > 0 else 0.0)
+        if cfg.max_range > 0:
+            far = hit & (r > cfg.max_range)
+            hit &= ~far
+            no_return |= far
+            length = np.where(far, cfg.max_range, length)
+        use = hit | (no_return & (length > 0))
+        ends = np.column_stack((sx + length[use] * np.cos(a[use]), sy + length[use] * np.sin(a[use])))
+        return np.array([sx, sy]), ends, hit[use], use
+
+    def add(self, pose, scan, mount=None) -> None:
+        """Integrate one scan taken at `pose` (x, y, yaw of base_link in the map); `mount` overrides the builder's."""
+        origin, ends, hit, _ = self.beams(pose, scan, mount)
+        self.add_beams(origin, ends, hit)
+
+    def add_beams(self, origin: np.ndarray, ends: np.ndarray, hit: np.ndarray) -> None:
+        """Integrate beams from `origin` (2,) to `ends` (N×2, map frame); `hit[i]` marks a return at the end."""
+        self.n_scans += 1
+        if len(ends) == 0:
+            return
+        res = self.res
+        p0 = np.asarray(origin, np.float64) / res
+        p1 = np.asarray(ends, np.float64) / res
+        c_start = np.floor(p0).astype(np.int64)
+        c_end = np.floor(p1).astype(np.int64)
+        # DDA: n_i + 1 evenly spaced samples from start to end, each within one cell of the previous (8-connected).
+        n = np.maximum(np.abs(c_end - c_start).max(axis=1), 1)
+        beam = np.repeat(np.arange(len(p1)), n)
+        k = np.arange(beam.size) - np.repeat(np.cumsum(n) - n, n)  # 0..n_i-1 within each beam (end excluded)
+        t = (k / n[beam])[:, None]
+        cells = np.floor(p0 + t * (p1[beam] - p0)).astype(np.int64)
+        allc = np.vstack((cells, c_end, c_start[None]))
+        cmin, rmin = allc.min(axis=0)
+        cmax, rmax = allc.max(axis=0)
+        self._ensure(int(cmin), int(rmin), int(cmax), int(rmax))
+        # One update per cell per scan: mark in a window the size of the scan's bounding box.
+        bw, bh = int(cmax - cmin + 1), int(rmax - rmin + 1)
+        free = np.zeros(bh * bw, bool)
+        free[(cells[:, 1] - rmin) * bw + (cells[:, 0] - cmin)] = True
+        end_idx = (c_end[:, 1] - rmin) * bw + (c_end[:, 0] - cmin)
+        free[end_idx[~hit]] = True  # a no-return beam's last cell is free too
+        occ = np.zeros(bh * bw, bool)
+        occ[end_idx[hit]] = True
+        free &= ~occ
+        fi = np.flatnonzero(free)
+        oi = np.flatnonzero(occ)
+        w = self.log_odds.shape[1]
+        off = (rmin - self.r0) * w + (cmin - self.c0)
+        gf = off + (fi // bw) * w + fi % bw  # window index → index into the whole array
+        go = off + (oi // bw) * w + oi % bw
+        lo, seen = self.log_odds.reshape(-1), self.seen.reshape(-1)
+        lo[gf] = np.clip(lo[gf] + np.float32(self.l_miss), self.l_min, self.l_max)
+        lo[go] = np.clip(lo[go] + np.float32(self.l_hit), self.l_min, self.l_max)
+        seen[gf] = True
+        seen[go] = True
+
+    # -- output ----------------------------------------------------------------------------------------------------
+    def probabilities(self) -> np.ndarray:
+        """Occupancy probability of every cell of the array (0.5 where never seen)."""
+        return 1.0 / (1.0 + np.exp(-self.log_odds.astype(np.float64)))
+
+    def to_occupancy(self, crop: bool = True) -> OccupancyGrid:
+        """The map as an OccupancyGrid (0..100 = round(100·p), −1 never seen), cropped to the seen cells."""
+        if not self.seen.any():
+            return OccupancyGrid(np.full((1, 1), -1, np.int8), self.res, (self.c0 * self.res, self.r0 * self.res, 0.0))
+        r0, c0 = 0, 0
+        lo, seen = self.log_odds, self.seen
+        if crop:
+            rows = np.flatnonzero(seen.any(axis=1))
+            cols = np.flatnonzero(seen.any(axis=0))
+            r0, c0 = int(rows[0]), int(cols[0])
+            sl = (slice(r0, int(rows[-1]) + 1), slice(c0, int(cols[-1]) + 1))
+            lo, seen = lo[sl], seen[sl]
+        p = 1.0 / (1.0 + np.exp(-lo.astype(np.float64)))
+        data = np.where(seen, np.rint(100.0 * p), -1).astype(np.int8)
+        return OccupancyGrid(data, self.res, ((self.c0 + c0) * self.res, (self.r0 + r0) * self.res, 0.0))
+
+
+def build_grid(poses: np.ndarray, scans, mount=(0.0, 0.0, 0.0), config: GridConfig | None = None) -> OccupancyGrid:
+    """One grid from N×3 poses (x, y, yaw of base_link in the map) and their N scans (an iterable is streamed)."""
+    b = GridBuilder(config, mount)
+    for pose, scan in zip(np.asarray(poses, float), scans):
+        b.add(pose, scan)
+    return b.to_occupancy()
