@@ -1,26 +1,813 @@
-"""FSPF (Biswas & Veloso) and FSPF+ (thesis Alg. 1, 3–6): sampled plane filtering of depth images."""
+"""FSPF (Biswas & Veloso) and FSPF+ (thesis Alg. 1, 3–6): sampled plane filtering of depth images.
+
+Both take a depth image in metres, the pinhole camera and an explicit seed, and return `Planes`
+(frontend/planes.py). The inner loops run compiled with numba (STACK.md measured numpy-only FSPF+ at
+18–20 ms per 512×424 frame against ~3 ms compiled); `backend="numpy"` keeps a vectorised numpy path of the
+same algorithms for the benchmark's honesty (same statistics, not the same random draws).
+
+FSPF+ (thesis Alg. 3): p0 a random eligible, unconsumed pixel; p1, p2 eligible within Ω of it; the search
+window W = fx·Δ/z̄, H = fy·Δ/z̄ around p0 (the projection of the world size Δ at their mean depth z̄;
+DESIGN.md), clipped at the border; its eligible pixels become 3D points and are consumed; RANSAC (ε, β;
+Alg. 5) finds the plane, refitted by least squares; the normal is rectified to face the camera and
+classified (Alg. 6); planes of dropped classes and planes with ≤ nMin inliers are discarded; the loop stops
+when fewer than (1 − analysed fraction) of the eligible pixels are unconsumed. Our one addition: after the
+first plane, RANSAC runs again on the window's outliers (`planes_per_window`, 1 = the thesis), so a window
+that straddles a wall and the floor keeps both.
+
+FSPF (Biswas & Veloso 2012, thesis Alg. 1): random d0, d1, d2 within η; a plane through their points; l
+local samples in the window of world size S around d0; accepted when the inlier fraction reaches α_in; stop
+at n_max filtered points or k_max neighbourhoods. Its normal is refitted by least squares on the inliers.
+"""
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
-from frontend.params import StageConfig, param
+import numpy as np
+from numba import njit
 
-PLANE_CLASSES = ("ground", "ceiling", "left", "right", "front", "slanted")
+from frontend.camera import DepthConfig, camera_axes, depth_constraints
+from frontend.params import StageConfig, param
+from frontend.planes import PLANE_CLASSES, FrameStats, Planes, classify, fit_plane, merge_planes, ransac_plane, rectify
+from frontend.records import CameraModel, Transform
+
+__all__ = ["FspfConfig", "PLANE_CLASSES", "filter_planes", "fspf_plus", "fspf", "frame_seed", "warmup"]
 
 
 @dataclass
 class FspfConfig(StageConfig):
-    """[fspf]: defaults from the thesis's Table 5.4 (real-time configuration)."""
+    """[fspf]: FSPF+ defaults from the thesis's Table 5.4 (real-time configuration); FSPF from Biswas's config."""
 
     section = "fspf"
     method: str = param("fspf+", choices=("fspf+", "fspf"), doc="FSPF+ (thesis) or FSPF (Biswas, baseline)")
-    n_min: int = param(40, lo=3, doc="planes with this many inliers or fewer are dropped (nMin)")
-    omega_px: int = param(60, lo=2, doc="p1, p2 are drawn within this many pixels of p0 (Ω)", unit="px")
-    delta_m: float = param(0.5, lo=0.0, lo_open=True, doc="world size of the search window (Δ)", unit="m")
-    epsilon_m: float = param(0.02, lo=0.0, lo_open=True, doc="RANSAC inlier distance (ε)", unit="m")
-    beta: float = param(3.0, lo=1.0, doc="RANSAC stopping factor (β)")
+    backend: str = param("numba", choices=("numba", "numpy"), doc="compiled inner loops, or numpy only (benchmarks)")
+    n_min: int = param(40, lo=3, doc="FSPF+: planes with this many inliers or fewer are dropped (nMin)")
+    omega_px: int = param(60, lo=2, doc="FSPF+: p1, p2 are drawn within this many pixels of p0 (Ω)", unit="px")
+    delta_m: float = param(0.5, lo=0.0, lo_open=True, doc="world size of the search window (Δ; FSPF's S)", unit="m")
+    epsilon_m: float = param(0.02, lo=0.0, lo_open=True, doc="FSPF+: RANSAC inlier distance (ε)", unit="m")
+    beta: float = param(3.0, lo=0.0, doc="FSPF+: RANSAC stopping factor (β: standard deviations of the draw count)")
     analysed_fraction: float = param(0.90, lo=0.0, hi=1.0, lo_open=True,
-                                     doc="stop when this fraction of eligible pixels is consumed (nRequired)")
+                                     doc="FSPF+: stop when this fraction of eligible pixels is consumed (nRequired; 0.99 offline)")
+    ransac_subset: int = param(128, lo=3, doc="FSPF+: hypotheses are scored on this many random window points")
+    ransac_max_iter: int = param(100, lo=1, doc="FSPF+: at most this many RANSAC hypotheses per plane")
+    planes_per_window: int = param(3, lo=1, doc="FSPF+: planes sought per window (1 = the thesis; more keeps corners)")
+    fspf_max_points: int = param(2000, lo=1, doc="FSPF: stop after this many filtered points (n_max)")
+    fspf_max_neighborhoods: int = param(20000, lo=1, doc="FSPF: stop after this many neighbourhoods (k_max)")
+    fspf_local_samples: int = param(80, lo=3, doc="FSPF: local samples per neighbourhood (l; Biswas 50–100)")
+    fspf_window_px: int = param(60, lo=2, doc="FSPF: d1, d2 are drawn within ±window/2 of d0 (η)", unit="px")
+    fspf_error_m: float = param(0.03, lo=0.0, lo_open=True, doc="FSPF: plane inlier distance (ε)", unit="m")
+    fspf_min_inlier_fraction: float = param(0.8, lo=0.0, hi=1.0, lo_open=True, doc="FSPF: accept at this inlier fraction (α_in)")
+    slanted_min_deg: float = param(5.0, lo=0.0, hi=90.0, doc="tilted less than this from level: ground or ceiling", unit="deg")
+    slanted_max_deg: float = param(80.0, lo=0.0, hi=90.0, doc="tilted more than this: a wall; between: slanted", unit="deg")
+    merge: bool = param(True, doc="merge coplanar patches into one refitted plane")
+    merge_angle_deg: float = param(5.0, lo=0.0, hi=90.0, doc="merge: normals agree within this angle", unit="deg")
+    merge_offset_m: float = param(0.05, lo=0.0, doc="merge: each centroid within this distance of the other plane", unit="m")
     drop_classes: list = param(["ground", "ceiling"], choices=PLANE_CLASSES, doc="plane classes filtered out")
     seed: int = param(0, lo=0, doc="random seed (per frame, the frame index is added)")
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        from frontend.errors import ConfigError
+
+        if self.slanted_max_deg < self.slanted_min_deg:
+            raise ConfigError(f"config [fspf] slanted_max_deg = {self.slanted_max_deg} must be ≥ slanted_min_deg = {self.slanted_min_deg}")
+
+
+def frame_seed(cfg: FspfConfig, index: int) -> int:
+    """The seed of frame `index` (the config's seed plus the index)."""
+    return int(cfg.seed) + int(index)
+
+
+# ---- random numbers: xorshift64 seeded by splitmix64 (fast inside numba, reproducible) --------------------------------
+
+_M64 = (1 << 64) - 1
+
+
+def _rng_state(seed: int) -> np.ndarray:
+    z = (int(seed) + 0x9E3779B97F4A7C15) & _M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
+    z ^= z >> 31
+    return np.array([z or 0x2545F4914F6CDD1D], dtype=np.uint64)
+
+
+@njit(cache=True, inline="always")
+def _next(state):
+    x = state[0]
+    x ^= x << np.uint64(13)
+    x ^= x >> np.uint64(7)
+    x ^= x << np.uint64(17)
+    state[0] = x
+    return x
+
+
+@njit(cache=True, inline="always")
+def _randint(state, n):
+    """Uniform integer in [0, n)."""
+    return np.int64((_next(state) >> np.uint64(11)) % np.uint64(n))
+
+
+@njit(cache=True, inline="always")
+def _uniform(state):
+    """Uniform float in [0, 1)."""
+    return np.float64(_next(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+# ---- shared numba pieces -------------------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max):
+    """planes.classify for one normal (thesis Alg. 6 with the slanted class); keep the two identical."""
+    cu = nx * up[0] + ny * up[1] + nz * up[2]
+    a = abs(cu)
+    if a > 1.0:
+        a = 1.0
+    tilt = np.degrees(np.arccos(a))
+    if tilt < sl_min:
+        return 0 if cu > 0 else 1
+    if tilt > sl_max:
+        hx, hy, hz = nx - cu * up[0], ny - cu * up[1], nz - cu * up[2]
+        hf = hx * fwd[0] + hy * fwd[1] + hz * fwd[2]
+        hl = hx * left[0] + hy * left[1] + hz * left[2]
+        if -hf >= abs(hl):
+            return 4
+        return 2 if hl < 0 else 3
+    return 5
+
+
+@njit(cache=True)
+def _refit_nb(wx, wy, wz, act, n):
+    """Least-squares plane through the points act[:n]: smallest eigenvector of their covariance."""
+    mx = my = mz = 0.0
+    for a in range(n):
+        q = act[a]
+        mx += wx[q]
+        my += wy[q]
+        mz += wz[q]
+    mx /= n
+    my /= n
+    mz /= n
+    C = np.zeros((3, 3))
+    for a in range(n):
+        q = act[a]
+        dx, dy, dz = wx[q] - mx, wy[q] - my, wz[q] - mz
+        C[0, 0] += dx * dx
+        C[0, 1] += dx * dy
+        C[0, 2] += dx * dz
+        C[1, 1] += dy * dy
+        C[1, 2] += dy * dz
+        C[2, 2] += dz * dz
+    C[1, 0] = C[0, 1]
+    C[2, 0] = C[0, 2]
+    C[2, 1] = C[1, 2]
+    _, v = np.linalg.eigh(C)
+    nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    return nx, ny, nz, -(nx * mx + ny * my + nz * mz)
+
+
+@njit(cache=True)
+def _inlier_fit_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps):
+    """Least-squares refit on the inliers of (n, d) among act[:na], in one pass over the moments.
+
+    Moments are taken about the first point so that Σppᵀ/n − c·cᵀ stays accurate in float64.
+    Returns (count, nx, ny, nz, d).
+    """
+    q0 = act[0]
+    ox, oy, oz = wx[q0], wy[q0], wz[q0]
+    cnt = 0
+    sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+    for a in range(na):
+        q = act[a]
+        x, y, z = wx[q], wy[q], wz[q]
+        if abs(nx * x + ny * y + nz * z + d) < eps:
+            x -= ox
+            y -= oy
+            z -= oz
+            cnt += 1
+            sx += x
+            sy += y
+            sz += z
+            sxx += x * x
+            sxy += x * y
+            sxz += x * z
+            syy += y * y
+            syz += y * z
+            szz += z * z
+    if cnt < 3:
+        return cnt, nx, ny, nz, d
+    mx, my, mz = sx / cnt, sy / cnt, sz / cnt
+    C = np.empty((3, 3))
+    C[0, 0] = sxx / cnt - mx * mx
+    C[0, 1] = C[1, 0] = sxy / cnt - mx * my
+    C[0, 2] = C[2, 0] = sxz / cnt - mx * mz
+    C[1, 1] = syy / cnt - my * my
+    C[1, 2] = C[2, 1] = syz / cnt - my * mz
+    C[2, 2] = szz / cnt - mz * mz
+    _, v = np.linalg.eigh(C)
+    rx, ry, rz = v[0, 0], v[1, 0], v[2, 0]
+    return cnt, rx, ry, rz, -(rx * (mx + ox) + ry * (my + oy) + rz * (mz + oz))
+
+
+@njit(cache=True)
+def _partition_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps):
+    """Reorder act[:na] so the inliers (|n·p + d| < ε) come first; return their count."""
+    k = 0
+    for a in range(na):
+        q = act[a]
+        if abs(nx * wx[q] + ny * wy[q] + nz * wz[q] + d) < eps:
+            act[a] = act[k]
+            act[k] = q
+            k += 1
+    return k
+
+
+@njit(cache=True)
+def _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub):
+    """RANSAC (thesis Alg. 5): 3-point hypotheses scored on ≤ subset random points, adaptive stop (β)."""
+    if na <= subset:
+        ns = na
+        for s in range(na):
+            sub[s] = act[s]
+    else:
+        ns = subset
+        for s in range(subset):
+            sub[s] = act[_randint(state, na)]
+    best = -1
+    bx = by = bz = bd = 0.0
+    need = float(max_iter)
+    it = 0
+    while it < need and it < max_iter:
+        it += 1
+        a = act[_randint(state, na)]
+        b = act[_randint(state, na)]
+        c = act[_randint(state, na)]
+        ux, uy, uz = wx[b] - wx[a], wy[b] - wy[a], wz[b] - wz[a]
+        vx, vy, vz = wx[c] - wx[a], wy[c] - wy[a], wz[c] - wz[a]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn < 1e-12:
+            continue
+        nx /= nn
+        ny /= nn
+        nz /= nn
+        d = -(nx * wx[a] + ny * wy[a] + nz * wz[a])
+        cnt = 0
+        for s in range(ns):
+            q = sub[s]
+            if abs(nx * wx[q] + ny * wy[q] + nz * wz[q] + d) < eps:
+                cnt += 1
+        if cnt > best:
+            best = cnt
+            bx, by, bz, bd = nx, ny, nz, d
+            w3 = (cnt / ns) ** 3
+            if w3 > 0:
+                need = (1.0 + beta * np.sqrt(max(0.0, 1.0 - w3))) / w3
+    return best >= 3, bx, by, bz, bd
+
+
+# ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
+                  per_window, up, fwd, left, sl_min, sl_max, drop, state,
+                  out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
+    H, W = depth.shape
+    npx = H * W
+    flat = depth.ravel()
+    st = np.zeros(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 consumed
+    cand = np.empty(npx, np.int32)
+    m = 0
+    for i in range(npx):  # depthConstraints (thesis Alg. 4); NaN compares false
+        z = flat[i]
+        if z > min_d and z <= max_d:
+            st[i] = 1
+            cand[m] = i
+            m += 1
+    n_elig = m
+    remaining = n_elig
+    stop = (1.0 - frac) * n_elig
+    wr = np.empty(npx, np.int32)
+    wc = np.empty(npx, np.int32)
+    wx = np.empty(npx, np.float64)
+    wy = np.empty(npx, np.float64)
+    wz = np.empty(npx, np.float64)
+    act = np.empty(npx, np.int32)
+    sub = np.empty(subset, np.int32)
+    n_out = 0
+    n_pl = 0
+    n_drop = 0
+    n_outl = 0
+    n_win = 0
+    n_vis = 0
+    while remaining > stop and m > 0:
+        # p0: a random eligible, unconsumed pixel (consumed candidates are removed lazily)
+        i = _randint(state, m)
+        i0 = cand[i]
+        if st[i0] != 1:
+            m -= 1
+            cand[i] = cand[m]
+            continue
+        r0 = i0 // W
+        c0 = i0 - r0 * W
+        # p1, p2: eligible pixels within Ω of p0
+        found = 0
+        j1 = -1
+        zs = flat[i0]
+        for _ in range(40):
+            r = r0 + _randint(state, 2 * omega + 1) - omega
+            c = c0 + _randint(state, 2 * omega + 1) - omega
+            if r < 0 or r >= H or c < 0 or c >= W:
+                continue
+            j = r * W + c
+            if j == i0 or j == j1 or st[j] != 1:
+                continue
+            zs += flat[j]
+            j1 = j
+            found += 1
+            if found == 2:
+                break
+        if found < 2:  # an isolated pixel: consume it as an outlier
+            st[i0] = 2
+            remaining -= 1
+            n_outl += 1
+            continue
+        zbar = zs / 3.0
+        hw = int(0.5 * fx * delta / zbar + 0.5)
+        hh = int(0.5 * fy * delta / zbar + 0.5)
+        r_lo, r_hi = max(0, r0 - hh), min(H - 1, r0 + hh)
+        c_lo, c_hi = max(0, c0 - hw), min(W - 1, c0 + hw)
+        n_win += 1
+        n_vis += (r_hi - r_lo + 1) * (c_hi - c_lo + 1)
+        k = 0
+        for r in range(r_lo, r_hi + 1):
+            base = r * W
+            for c in range(c_lo, c_hi + 1):
+                j = base + c
+                if st[j] == 1:
+                    st[j] = 2
+                    z = np.float64(flat[j])
+                    wr[k] = r
+                    wc[k] = c
+                    wx[k] = (c - cx) * z / fx
+                    wy[k] = (r - cy) * z / fy
+                    wz[k] = z
+                    k += 1
+        remaining -= k
+        if k <= n_min:
+            n_outl += k
+            continue
+        for a in range(k):
+            act[a] = a
+        na = k
+        for _pw in range(per_window):
+            if na <= n_min:
+                break
+            ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub)
+            if not ok:
+                break
+            n_in, nx, ny, nz, d = _inlier_fit_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps)
+            if n_in <= n_min:
+                break
+            n_in = _partition_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps)
+            if n_in <= n_min:
+                break
+            if d < 0:  # rectify: the normal faces the camera
+                nx, ny, nz, d = -nx, -ny, -nz, -d
+            cls = _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max)
+            if drop[cls]:
+                n_drop += n_in
+            else:
+                for a in range(n_in):
+                    q = act[a]
+                    out_pix[n_out, 0] = wr[q]
+                    out_pix[n_out, 1] = wc[q]
+                    out_pts[n_out, 0] = wx[q]
+                    out_pts[n_out, 1] = wy[q]
+                    out_pts[n_out, 2] = wz[q]
+                    out_plane[n_out] = n_pl
+                    n_out += 1
+                pl_n[n_pl, 0] = nx
+                pl_n[n_pl, 1] = ny
+                pl_n[n_pl, 2] = nz
+                pl_d[n_pl] = d
+                pl_cls[n_pl] = cls
+                pl_cnt[n_pl] = n_in
+                n_pl += 1
+            for a in range(n_in, na):
+                act[a - n_in] = act[a]
+            na -= n_in
+        n_outl += na
+    stats[0] = npx
+    stats[1] = npx - n_elig
+    stats[2] = n_out
+    stats[3] = n_drop
+    stats[4] = n_outl
+    stats[5] = remaining
+    stats[6] = n_win
+    stats[7] = n_vis
+    return n_out, n_pl
+
+
+# ---- FSPF (Biswas & Veloso; thesis Alg. 1) -----------------------------------------------------------------------------
+
+@njit(cache=True)
+def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, eps, alpha, up, fwd, left,
+             sl_min, sl_max, drop, state, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
+    H, W = depth.shape
+    npx = H * W
+    flat = depth.ravel()
+    st = np.zeros(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 examined (outlier), 3 plane point, 4 dropped
+    n_elig = 0
+    for i in range(npx):
+        z = flat[i]
+        if z > min_d and z <= max_d:
+            st[i] = 1
+            n_elig += 1
+    li = np.empty(l, np.int64)
+    lx = np.empty(l, np.float64)
+    ly = np.empty(l, np.float64)
+    lz = np.empty(l, np.float64)
+    act = np.empty(l, np.int32)
+    need = int(np.ceil(alpha * l - 1e-9))
+    max_bad = l - need
+    half = eta // 2
+    n_out = 0
+    n_pl = 0
+    n_drop = 0
+    for _k in range(k_max):
+        if n_out + n_drop >= n_max:
+            break
+        r0 = _randint(state, H)
+        c0 = _randint(state, W)
+        i0 = r0 * W + c0
+        if st[i0] == 0:
+            continue
+        r1 = r0 + _randint(state, eta + 1) - half
+        c1 = c0 + _randint(state, eta + 1) - half
+        r2 = r0 + _randint(state, eta + 1) - half
+        c2 = c0 + _randint(state, eta + 1) - half
+        if r1 < 0 or r1 >= H or c1 < 0 or c1 >= W or r2 < 0 or r2 >= H or c2 < 0 or c2 >= W:
+            continue
+        i1 = r1 * W + c1
+        i2 = r2 * W + c2
+        if st[i1] == 0 or st[i2] == 0:
+            continue
+        z0, z1, z2 = np.float64(flat[i0]), np.float64(flat[i1]), np.float64(flat[i2])
+        x0, y0 = (c0 - cx) * z0 / fx, (r0 - cy) * z0 / fy
+        x1, y1 = (c1 - cx) * z1 / fx, (r1 - cy) * z1 / fy
+        x2, y2 = (c2 - cx) * z2 / fx, (r2 - cy) * z2 / fy
+        ux, uy, uz = x1 - x0, y1 - y0, z1 - z0
+        vx, vy, vz = x2 - x0, y2 - y0, z2 - z0
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn < 1e-12:
+            continue
+        nx /= nn
+        ny /= nn
+        nz /= nn
+        d = -(nx * x0 + ny * y0 + nz * z0)
+        zbar = (z0 + z1 + z2) / 3.0
+        ww = fx * size / zbar
+        wh = fy * size / zbar
+        n_in = 0
+        n_bad = 0
+        for _s in range(l):
+            r = r0 + int(np.floor((_uniform(state) - 0.5) * wh + 0.5))
+            c = c0 + int(np.floor((_uniform(state) - 0.5) * ww + 0.5))
+            if r >= 0 and r < H and c >= 0 and c < W:
+                j = r * W + c
+                if st[j] != 0:
+                    z = np.float64(flat[j])
+                    x, y = (c - cx) * z / fx, (r - cy) * z / fy
+                    if abs(nx * x + ny * y + nz * z + d) < eps:
+                        li[n_in] = j
+                        lx[n_in] = x
+                        ly[n_in] = y
+                        lz[n_in] = z
+                        n_in += 1
+                        continue
+                    if st[j] == 1:
+                        st[j] = 2
+            n_bad += 1
+            if n_bad > max_bad:  # α_in can no longer be reached
+                break
+        if n_bad > max_bad:
+            for a in range(n_in):
+                if st[li[a]] == 1:
+                    st[li[a]] = 2
+            continue
+        if n_in < 3:
+            continue
+        for a in range(n_in):
+            act[a] = a
+        nx, ny, nz, d = _refit_nb(lx, ly, lz, act, n_in)
+        if d < 0:
+            nx, ny, nz, d = -nx, -ny, -nz, -d
+        cls = _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max)
+        if drop[cls]:
+            for a in range(n_in):
+                j = li[a]
+                if st[j] == 1 or st[j] == 2:
+                    st[j] = 4
+                    n_drop += 1
+            continue
+        added = 0
+        for a in range(n_in):
+            j = li[a]
+            if st[j] == 1 or st[j] == 2:
+                st[j] = 3
+                out_pix[n_out, 0] = j // W
+                out_pix[n_out, 1] = j - (j // W) * W
+                out_pts[n_out, 0] = lx[a]
+                out_pts[n_out, 1] = ly[a]
+                out_pts[n_out, 2] = lz[a]
+                out_plane[n_out] = n_pl
+                n_out += 1
+                added += 1
+        if added > 0:
+            pl_n[n_pl, 0] = nx
+            pl_n[n_pl, 1] = ny
+            pl_n[n_pl, 2] = nz
+            pl_d[n_pl] = d
+            pl_cls[n_pl] = cls
+            pl_cnt[n_pl] = added
+            n_pl += 1
+    n_outl = 0
+    remaining = 0
+    for i in range(npx):
+        if st[i] == 1:
+            remaining += 1
+        elif st[i] == 2:
+            n_outl += 1
+    stats[0] = npx
+    stats[1] = npx - n_elig
+    stats[2] = n_out
+    stats[3] = n_drop
+    stats[4] = n_outl
+    stats[5] = remaining
+    return n_out, n_pl
+
+
+# ---- numpy paths (same algorithms, vectorised per window; for the benchmark) ---------------------------------------------
+
+def _fspf_plus_np(depth, cam, cfg, dcfg, axes, drop, rng):
+    H, W = depth.shape
+    fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
+    elig = depth_constraints(depth, dcfg.min_depth, dcfg.max_depth)
+    st = elig.astype(np.uint8)
+    cand = np.flatnonzero(elig)
+    n_elig = len(cand)
+    remaining = n_elig
+    stop = (1.0 - cfg.analysed_fraction) * n_elig
+    om = cfg.omega_px
+    pix, pts, plane, normals, offsets, classes, counts = [], [], [], [], [], [], []
+    n_drop = n_outl = 0
+    flat_st = st.reshape(-1)
+    misses = 0
+    while remaining > stop and len(cand):
+        i0 = int(cand[rng.integers(len(cand))])
+        if flat_st[i0] != 1:
+            misses += 1
+            if misses > 16:  # compact the candidates once many have been consumed
+                cand = cand[flat_st[cand] == 1]
+                misses = 0
+            continue
+        r0, c0 = divmod(i0, W)
+        off = rng.integers(-om, om + 1, (40, 2))
+        rr, cc = r0 + off[:, 0], c0 + off[:, 1]
+        ok = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
+        rr, cc = rr[ok], cc[ok]
+        jj = rr * W + cc
+        ok = (flat_st[jj] == 1) & (jj != i0)
+        jj = jj[ok]
+        _, first = np.unique(jj, return_index=True)
+        jj = jj[np.sort(first)][:2]
+        if len(jj) < 2:
+            flat_st[i0] = 2
+            remaining -= 1
+            n_outl += 1
+            continue
+        zbar = (depth.flat[i0] + depth.flat[jj[0]] + depth.flat[jj[1]]) / 3.0
+        hw, hh = int(0.5 * fx * cfg.delta_m / zbar + 0.5), int(0.5 * fy * cfg.delta_m / zbar + 0.5)
+        r_lo, r_hi, c_lo, c_hi = max(0, r0 - hh), min(H - 1, r0 + hh), max(0, c0 - hw), min(W - 1, c0 + hw)
+        win = st[r_lo:r_hi + 1, c_lo:c_hi + 1]
+        m = win == 1
+        wr, wc = np.nonzero(m)
+        win[m] = 2
+        k = len(wr)
+        remaining -= k
+        if k <= cfg.n_min:
+            n_outl += k
+            continue
+        wr += r_lo
+        wc += c_lo
+        z = depth[wr, wc].astype(np.float64)
+        P = np.column_stack(((wc - cx) * z / fx, (wr - cy) * z / fy, z))
+        active = np.arange(k)
+        for _ in range(cfg.planes_per_window):
+            if len(active) <= cfg.n_min:
+                break
+            n, d, inl = ransac_plane(P[active], cfg.epsilon_m, cfg.beta, rng, cfg.ransac_subset, cfg.ransac_max_iter)
+            n_in = int(inl.sum())
+            if n_in <= cfg.n_min:
+                break
+            cls = int(classify(n[None], *axes, cfg.slanted_min_deg, cfg.slanted_max_deg)[0])
+            sel = active[inl]
+            if drop[cls]:
+                n_drop += n_in
+            else:
+                plane.append(np.full(n_in, len(normals), np.int32))
+                pix.append(np.column_stack((wr[sel], wc[sel])).astype(np.int32))
+                pts.append(P[sel].astype(np.float32))
+                normals.append(n)
+                offsets.append(d)
+                classes.append(cls)
+                counts.append(n_in)
+            active = active[~inl]
+        n_outl += len(active)
+    stats = FrameStats(H * W, H * W - n_elig, int(sum(counts)), n_drop, n_outl, remaining)
+    return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf+")
+
+
+def _fspf_np(depth, cam, cfg, dcfg, axes, drop, rng):
+    H, W = depth.shape
+    fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
+    elig = depth_constraints(depth, dcfg.min_depth, dcfg.max_depth)
+    st = elig.astype(np.uint8).reshape(-1)  # 0 ineligible, 1 eligible, 2 examined, 3 plane point, 4 dropped
+    l, eta, half = cfg.fspf_local_samples, cfg.fspf_window_px, cfg.fspf_window_px // 2
+    need = int(np.ceil(cfg.fspf_min_inlier_fraction * l - 1e-9))
+    pix, pts, plane, normals, offsets, classes, counts = [], [], [], [], [], [], []
+    n_out = n_drop = 0
+    for _ in range(cfg.fspf_max_neighborhoods):
+        if n_out + n_drop >= cfg.fspf_max_points:
+            break
+        r = rng.integers(0, H)
+        c = rng.integers(0, W)
+        rs = np.array([r, r + rng.integers(0, eta + 1) - half, r + rng.integers(0, eta + 1) - half])
+        cs = np.array([c, c + rng.integers(0, eta + 1) - half, c + rng.integers(0, eta + 1) - half])
+        if (rs < 0).any() or (rs >= H).any() or (cs < 0).any() or (cs >= W).any():
+            continue
+        j3 = rs * W + cs
+        if (st[j3] == 0).any():
+            continue
+        z3 = depth.flat[j3].astype(np.float64)
+        p3 = np.column_stack(((cs - cx) * z3 / fx, (rs - cy) * z3 / fy, z3))
+        n = np.cross(p3[1] - p3[0], p3[2] - p3[0])
+        nn = np.linalg.norm(n)
+        if nn < 1e-12:
+            continue
+        n /= nn
+        d = -n @ p3[0]
+        zbar = z3.mean()
+        u = rng.random((l, 2)) - 0.5
+        lr = r + np.floor(u[:, 0] * fy * cfg.delta_m / zbar + 0.5).astype(np.int64)
+        lc = c + np.floor(u[:, 1] * fx * cfg.delta_m / zbar + 0.5).astype(np.int64)
+        inside = (lr >= 0) & (lr < H) & (lc >= 0) & (lc < W)
+        j = lr[inside] * W + lc[inside]
+        j = j[st[j] != 0]
+        z = depth.flat[j].astype(np.float64)
+        P = np.column_stack(((j % W - cx) * z / fx, (j // W - cy) * z / fy, z))
+        inl = np.abs(P @ n + d) < cfg.fspf_error_m
+        if inl.sum() < need:
+            bad = j[st[j] == 1]
+            st[bad] = 2
+            continue
+        j, P = j[inl], P[inl]
+        n, d = rectify(*fit_plane(P))
+        cls = int(classify(n[None], *axes, cfg.slanted_min_deg, cfg.slanted_max_deg)[0])
+        j, first = np.unique(j, return_index=True)
+        P = P[first]
+        new = (st[j] == 1) | (st[j] == 2)
+        if drop[cls]:
+            st[j[new]] = 4
+            n_drop += int(new.sum())
+            continue
+        if not new.any():
+            continue
+        j, P = j[new], P[new]
+        st[j] = 3
+        plane.append(np.full(len(j), len(normals), np.int32))
+        pix.append(np.column_stack((j // W, j % W)).astype(np.int32))
+        pts.append(P.astype(np.float32))
+        normals.append(n)
+        offsets.append(float(d))
+        classes.append(cls)
+        counts.append(len(j))
+        n_out += len(j)
+    stats = FrameStats(H * W, int((st == 0).sum()), n_out, n_drop, int((st == 2).sum()), int((st == 1).sum()))
+    return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf")
+
+
+def _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, shape, method) -> Planes:
+    if not normals:
+        return Planes.empty(shape, stats, method)
+    return Planes(np.concatenate(pts), np.concatenate(plane), np.concatenate(pix), np.array(normals, float),
+                  np.array(offsets, float), np.array(classes, np.int8), np.array(counts, np.int64), stats, shape, method)
+
+
+# ---- the public entry points ---------------------------------------------------------------------------------------------
+
+def _prepare(depth_m, cam: CameraModel):
+    depth = np.ascontiguousarray(depth_m, dtype=np.float32)
+    if depth.ndim != 2:
+        raise ValueError(f"depth image must be 2-D, got shape {depth.shape}")
+    if (cam.height, cam.width) != depth.shape:
+        raise ValueError(f"camera is {cam.width}×{cam.height} but the depth image is {depth.shape[1]}×{depth.shape[0]}; "
+                         "use frontend.camera.camera_for")
+    return depth
+
+
+def _finish(planes: Planes, cfg: FspfConfig, axes, t0: float) -> Planes:
+    if cfg.merge and len(planes) > 1:
+        drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
+        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, *axes, cfg.slanted_min_deg,
+                              cfg.slanted_max_deg, drop)
+    planes.stats.planes = len(planes)
+    planes.stats.elapsed_ms = (time.perf_counter() - t0) * 1e3
+    return planes
+
+
+def _drop_mask(cfg: FspfConfig) -> np.ndarray:
+    return np.array([c in cfg.drop_classes for c in PLANE_CLASSES], dtype=np.bool_)
+
+
+def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
+              mount: Transform | None = None, seed: int | None = None, backend: str | None = None) -> Planes:
+    """FSPF+ (thesis Alg. 3, 5, 6) on one depth image (H×W metres; 0/NaN invalid). Same seed, same result.
+
+    `mount` (base_link ← optical, frontend.camera.camera_mount) gives gravity for the classes; None = level.
+    """
+    t0 = time.perf_counter()
+    cfg = cfg or FspfConfig()
+    dcfg = depth_cfg or DepthConfig()
+    depth = _prepare(depth_m, cam)
+    axes = camera_axes(mount)
+    seed = cfg.seed if seed is None else seed
+    if (backend or cfg.backend) == "numpy":
+        planes = _fspf_plus_np(depth, cam, cfg, dcfg, axes, _drop_mask(cfg), np.random.default_rng(seed))
+        return _finish(planes, cfg, axes, t0)
+    H, W = depth.shape
+    n_cap = H * W
+    p_cap = n_cap // (cfg.n_min + 1) + 1
+    out_pix = np.empty((n_cap, 2), np.int32)
+    out_pts = np.empty((n_cap, 3), np.float32)
+    out_plane = np.empty(n_cap, np.int32)
+    pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
+    pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
+    stats = np.zeros(8, np.int64)
+    n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
+                         cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
+                         cfg.ransac_max_iter, cfg.planes_per_window, *axes, cfg.slanted_min_deg, cfg.slanted_max_deg,
+                         _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats)
+    planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
+                    pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats[:6])), (H, W), "fspf+")
+    planes.stats.windows, planes.stats.visited = int(stats[6]), int(stats[7])
+    return _finish(planes, cfg, axes, t0)
+
+
+def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
+         mount: Transform | None = None, seed: int | None = None, backend: str | None = None) -> Planes:
+    """FSPF (Biswas & Veloso; thesis Alg. 1), the baseline, with the same classes, dropping and merging."""
+    t0 = time.perf_counter()
+    cfg = cfg or FspfConfig()
+    dcfg = depth_cfg or DepthConfig()
+    depth = _prepare(depth_m, cam)
+    axes = camera_axes(mount)
+    seed = cfg.seed if seed is None else seed
+    if (backend or cfg.backend) == "numpy":
+        planes = _fspf_np(depth, cam, cfg, dcfg, axes, _drop_mask(cfg), np.random.default_rng(seed))
+        return _finish(planes, cfg, axes, t0)
+    H, W = depth.shape
+    l = cfg.fspf_local_samples
+    n_cap = cfg.fspf_max_points + l
+    p_cap = cfg.fspf_max_points + 1
+    out_pix = np.empty((n_cap, 2), np.int32)
+    out_pts = np.empty((n_cap, 3), np.float32)
+    out_plane = np.empty(n_cap, np.int32)
+    pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
+    pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
+    stats = np.zeros(6, np.int64)
+    n, p = _fspf_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.fspf_max_points,
+                    cfg.fspf_max_neighborhoods, l, cfg.fspf_window_px, cfg.delta_m, cfg.fspf_error_m,
+                    cfg.fspf_min_inlier_fraction, *axes, cfg.slanted_min_deg, cfg.slanted_max_deg, _drop_mask(cfg),
+                    _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats)
+    planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
+                    pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats)), (H, W), "fspf")
+    return _finish(planes, cfg, axes, t0)
+
+
+def filter_planes(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None,
+                  depth_cfg: DepthConfig | None = None, mount: Transform | None = None, seed: int | None = None) -> Planes:
+    """FSPF+ or FSPF as `cfg.method` says."""
+    cfg = cfg or FspfConfig()
+    run = fspf if cfg.method == "fspf" else fspf_plus
+    return run(depth_m, cam, cfg, depth_cfg, mount, seed)
+
+
+def warmup() -> None:
+    """Compile (or load from numba's cache) both kernels on a tiny image."""
+    cam = CameraModel.from_fov(16, 12, np.radians(70.0), np.radians(60.0))
+    d = np.full((12, 16), 2.0, np.float32)
+    fspf_plus(d, cam, FspfConfig(n_min=3))
+    fspf(d, cam, FspfConfig(fspf_max_neighborhoods=10))

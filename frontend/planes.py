@@ -1,0 +1,339 @@
+"""Planes found in one depth frame, and the plane operations FSPF and FSPF+ share.
+
+`Planes` is the stage's output (thesis §3.1): the filtered points in the camera's optical frame, the plane
+each belongs to, one rectified normal/offset/class per plane, and the frame's Table 5.2 statistics. Also
+here: the least-squares and RANSAC plane fits, normal rectification, classification by the angle to gravity
+(ground, ceiling, left, right, front, slanted) and plane merging (thesis future work, after Biswas's
+polygon merging).
+
+Plane equation convention: n·p + d = 0 with n a unit normal facing the camera, so d > 0 is the plane's
+distance from the optical centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numba import njit
+
+PLANE_CLASSES = ("ground", "ceiling", "left", "right", "front", "slanted")
+GROUND, CEILING, LEFT, RIGHT, FRONT, SLANTED = range(6)
+
+
+@dataclass
+class FrameStats:
+    """One frame's counts (thesis Table 5.2), all in pixels of the frame.
+
+    ineligible + inliers + dropped + outliers + remaining = pixels: inliers are points of the planes kept,
+    dropped the inliers of planes filtered out by class, outliers the examined points that belong to no
+    plane (including planes with ≤ nMin inliers), remaining the eligible pixels never examined.
+    """
+
+    pixels: int = 0
+    ineligible: int = 0
+    inliers: int = 0
+    dropped: int = 0
+    outliers: int = 0
+    remaining: int = 0
+    planes: int = 0
+    elapsed_ms: float = 0.0
+    windows: int = 0  # FSPF+ search windows (FSPF: neighbourhoods), for profiling
+    visited: int = 0  # pixels inside those windows, consumed or not
+
+    def _pct(self, n: int) -> float:
+        return 100.0 * n / self.pixels if self.pixels else 0.0
+
+    @property
+    def ineligible_pct(self) -> float:
+        return self._pct(self.ineligible)
+
+    @property
+    def inlier_pct(self) -> float:
+        return self._pct(self.inliers)
+
+    @property
+    def dropped_pct(self) -> float:
+        return self._pct(self.dropped)
+
+    @property
+    def outlier_pct(self) -> float:
+        return self._pct(self.outliers)
+
+    @property
+    def eligible(self) -> int:
+        return self.pixels - self.ineligible
+
+    COLUMNS = ("ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining", "planes", "elapsed_ms")
+
+    def row(self) -> dict:
+        """The Table 5.2 columns (plus dropped % and plane count) as a dict."""
+        return {c: getattr(self, c) for c in self.COLUMNS}
+
+
+@dataclass
+class Planes:
+    """The planes of one depth frame (camera optical frame: x right, y down, z forward)."""
+
+    points: np.ndarray  # N×3 float32, the filtered points
+    plane: np.ndarray  # N int32, index of each point's plane
+    pixels: np.ndarray  # N×2 int32, (row, col) of each point in the depth image
+    normals: np.ndarray  # P×3 float64, unit normals facing the camera
+    offsets: np.ndarray  # P float64, d in n·p + d = 0 (> 0: distance from the camera)
+    classes: np.ndarray  # P int8, index into PLANE_CLASSES
+    counts: np.ndarray  # P int64, points (pixels) per plane
+    stats: FrameStats = field(default_factory=FrameStats)
+    shape: tuple[int, int] = (0, 0)  # depth image rows, cols
+    method: str = "fspf+"
+
+    def __len__(self) -> int:
+        return len(self.offsets)
+
+    @property
+    def class_names(self) -> list[str]:
+        return [PLANE_CLASSES[c] for c in self.classes]
+
+    def point_classes(self) -> np.ndarray:
+        """Class index of every point (N int8)."""
+        return self.classes[self.plane] if len(self.plane) else np.zeros(0, np.int8)
+
+    def select(self, keep_planes: np.ndarray) -> Planes:
+        """The planes where `keep_planes` (bool P) holds, renumbered; stats unchanged."""
+        keep_planes = np.asarray(keep_planes, bool)
+        new_index = np.cumsum(keep_planes) - 1
+        pt = keep_planes[self.plane] if len(self.plane) else np.zeros(0, bool)
+        return Planes(self.points[pt], new_index[self.plane[pt]].astype(np.int32), self.pixels[pt],
+                      self.normals[keep_planes], self.offsets[keep_planes], self.classes[keep_planes],
+                      self.counts[keep_planes], self.stats, self.shape, self.method)
+
+    def depth_image(self) -> np.ndarray:
+        """The processed depth image: each plane point's z (m) at its pixel, 0 elsewhere (float32 H×W)."""
+        img = np.zeros(self.shape, np.float32)
+        if len(self.points):
+            img[self.pixels[:, 0], self.pixels[:, 1]] = self.points[:, 2]
+        return img
+
+    def label_image(self) -> np.ndarray:
+        """Plane index + 1 at each plane point's pixel, 0 elsewhere (int32 H×W)."""
+        img = np.zeros(self.shape, np.int32)
+        if len(self.points):
+            img[self.pixels[:, 0], self.pixels[:, 1]] = self.plane + 1
+        return img
+
+    @staticmethod
+    def empty(shape: tuple[int, int] = (0, 0), stats: FrameStats | None = None, method: str = "fspf+") -> Planes:
+        return Planes(np.zeros((0, 3), np.float32), np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
+                      np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8), np.zeros(0, np.int64),
+                      stats or FrameStats(), shape, method)
+
+
+# ---- fits -----------------------------------------------------------------------------------------------------------
+
+def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane (unit n, d) through N ≥ 3 points: the covariance's smallest eigenvector."""
+    p = np.asarray(points, dtype=np.float64)
+    c = p.mean(axis=0)
+    q = p - c
+    _, vecs = np.linalg.eigh(q.T @ q)
+    n = vecs[:, 0]
+    return n, float(-n @ c)
+
+
+def plane_from_moments(count: float, s: np.ndarray, ss: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares plane from the point count, Σp (3) and Σppᵀ (3×3): merging refits without the points."""
+    c = s / count
+    cov = ss / count - np.outer(c, c)
+    _, vecs = np.linalg.eigh(cov)
+    n = vecs[:, 0]
+    return n, float(-n @ c)
+
+
+def rectify(n: np.ndarray, d: float | np.ndarray):
+    """Flip (n, d) so the normal faces the camera at the origin: d > 0 (thesis: rectified normal)."""
+    n = np.asarray(n, dtype=np.float64)
+    d = np.asarray(d, dtype=np.float64)
+    s = np.where(d < 0, -1.0, 1.0)
+    return n * s[..., None] if n.ndim > 1 else n * s, d * s
+
+
+def ransac_plane(points: np.ndarray, epsilon: float, beta: float = 3.0, rng: np.random.Generator | None = None,
+                 subset: int = 128, max_iter: int = 100) -> tuple[np.ndarray, float, np.ndarray]:
+    """RANSAC plane (thesis Alg. 5): 3-point hypotheses scored on a random subset, adaptive stop, LSQ refit.
+
+    The number of hypotheses follows Fischler & Bolles: k = (1 + β·√(1 − w³)) / w³ with w the best inlier
+    fraction so far (the expected number of draws plus β standard deviations). Returns the refitted,
+    rectified (n, d) and the inlier mask over all points (|n·p + d| < ε).
+    """
+    rng = rng or np.random.default_rng(0)
+    p = np.asarray(points, dtype=np.float64)
+    m = len(p)
+    if m < 3:
+        return np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(m, bool)
+    sub = p if m <= subset else p[rng.integers(0, m, subset)]
+    best_n, best_d, best = np.array([0.0, 0.0, 1.0]), 0.0, -1
+    need, it, batch = float(max_iter), 0, 8
+    while it < min(need, max_iter):
+        k = int(min(batch, max_iter - it))
+        idx = rng.integers(0, m, (k, 3))
+        a, b, c = p[idx[:, 0]], p[idx[:, 1]], p[idx[:, 2]]
+        n = np.cross(b - a, c - a)
+        norm = np.linalg.norm(n, axis=1)
+        ok = norm > 1e-12
+        it += k
+        if not ok.any():
+            continue
+        n = n[ok] / norm[ok, None]
+        d = -np.einsum("ij,ij->i", n, a[ok])
+        score = (np.abs(sub @ n.T + d) < epsilon).sum(axis=0)
+        j = int(np.argmax(score))
+        if score[j] > best:
+            best, best_n, best_d = int(score[j]), n[j], float(d[j])
+            w3 = (best / len(sub)) ** 3
+            need = (1.0 + beta * np.sqrt(max(0.0, 1.0 - w3))) / w3 if w3 > 0 else float(max_iter)
+    inl = np.abs(p @ best_n + best_d) < epsilon
+    if inl.sum() >= 3:
+        n, d = fit_plane(p[inl])
+        inl = np.abs(p @ n + d) < epsilon
+        best_n, best_d = n, d
+    n, d = rectify(best_n, best_d)
+    return n, float(d), inl
+
+
+# ---- classification --------------------------------------------------------------------------------------------------
+
+def classify(normals: np.ndarray, up: np.ndarray, forward: np.ndarray, left: np.ndarray,
+             slanted_min_deg: float = 5.0, slanted_max_deg: float = 80.0) -> np.ndarray:
+    """Class of each camera-facing normal (P×3, optical frame) from its angle to gravity.
+
+    Tilt from horizontal below slanted_min_deg: ground (normal up) or ceiling (down); above slanted_max_deg:
+    a wall, front when it faces back along the view within 45°, else left or right; between: slanted.
+    `up, forward, left` come from `frontend.camera.camera_axes(mount)`.
+    """
+    n = np.atleast_2d(np.asarray(normals, dtype=np.float64))
+    cu = n @ up
+    tilt = np.degrees(np.arccos(np.clip(np.abs(cu), 0.0, 1.0)))
+    h = n - cu[:, None] * up
+    hf, hl = h @ forward, h @ left
+    wall = np.where(-hf >= np.abs(hl), FRONT, np.where(hl < 0, LEFT, RIGHT))
+    out = np.where(tilt < slanted_min_deg, np.where(cu > 0, GROUND, CEILING),
+                   np.where(tilt > slanted_max_deg, wall, SLANTED))
+    return out.astype(np.int8)
+
+
+# ---- merging ---------------------------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _moments_nb(points, plane, P):
+    """Per-plane count, Σp and Σppᵀ in one pass (float64)."""
+    cnt = np.zeros(P)
+    s = np.zeros((P, 3))
+    ss = np.zeros((P, 3, 3))
+    for i in range(len(plane)):
+        k = plane[i]
+        x, y, z = np.float64(points[i, 0]), np.float64(points[i, 1]), np.float64(points[i, 2])
+        cnt[k] += 1.0
+        s[k, 0] += x
+        s[k, 1] += y
+        s[k, 2] += z
+        ss[k, 0, 0] += x * x
+        ss[k, 0, 1] += x * y
+        ss[k, 0, 2] += x * z
+        ss[k, 1, 1] += y * y
+        ss[k, 1, 2] += y * z
+        ss[k, 2, 2] += z * z
+    for k in range(P):
+        ss[k, 1, 0] = ss[k, 0, 1]
+        ss[k, 2, 0] = ss[k, 0, 2]
+        ss[k, 2, 1] = ss[k, 1, 2]
+    return cnt, s, ss
+
+
+@njit(cache=True)
+def _merge_nb(normals, offsets, cnt, s, ss, cos_max, offset_m):
+    """Greedy merge, largest first: returns each plane's group and the groups' refitted (n, d)."""
+    P = len(cnt)
+    order = np.argsort(-cnt, kind="mergesort")
+    group = np.full(P, -1, np.int64)
+    g_cnt = np.zeros(P)
+    g_s = np.zeros((P, 3))
+    g_ss = np.zeros((P, 3, 3))
+    g_n = np.zeros((P, 3))
+    g_d = np.zeros(P)
+    G = 0
+    for i in order:
+        if cnt[i] == 0:
+            continue
+        ci = s[i] / cnt[i]
+        ni = normals[i]
+        hit = -1
+        for g in range(G):
+            if g_n[g, 0] * ni[0] + g_n[g, 1] * ni[1] + g_n[g, 2] * ni[2] < cos_max:
+                continue
+            cg = g_s[g] / g_cnt[g]
+            e1 = abs(g_n[g, 0] * ci[0] + g_n[g, 1] * ci[1] + g_n[g, 2] * ci[2] + g_d[g])
+            e2 = abs(ni[0] * cg[0] + ni[1] * cg[1] + ni[2] * cg[2] + offsets[i])
+            if e1 < offset_m and e2 < offset_m:
+                hit = g
+                break
+        if hit < 0:
+            group[i] = G
+            g_cnt[G] = cnt[i]
+            g_s[G] = s[i]
+            g_ss[G] = ss[i]
+            g_n[G] = ni
+            g_d[G] = offsets[i]
+            G += 1
+            continue
+        g = hit
+        group[i] = g
+        g_cnt[g] += cnt[i]
+        g_s[g] += s[i]
+        g_ss[g] += ss[i]
+        c = g_s[g] / g_cnt[g]
+        cov = g_ss[g] / g_cnt[g] - np.outer(c, c)
+        _, v = np.linalg.eigh(cov)
+        n = v[:, 0].copy()
+        d = -(n[0] * c[0] + n[1] * c[1] + n[2] * c[2])
+        if d < 0:
+            n = -n
+            d = -d
+        g_n[g] = n
+        g_d[g] = d
+    return group, g_n[:G].copy(), g_d[:G].copy()
+
+
+def merge_planes(planes: Planes, angle_deg: float, offset_m: float, up: np.ndarray, forward: np.ndarray,
+                 left: np.ndarray, slanted_min_deg: float = 5.0, slanted_max_deg: float = 80.0,
+                 drop_classes: tuple[int, ...] = ()) -> Planes:
+    """Merge coplanar patches (thesis future work; Biswas's polygon merging): one refitted plane each.
+
+    Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg
+    and where each one's centroid lies within offset_m of the other's plane; the merged plane is refitted by
+    least squares from the accumulated moments (Σp, Σppᵀ), rectified and reclassified. Planes whose new
+    class is in drop_classes are dropped.
+    """
+    P = len(planes)
+    if P <= 1:
+        return planes
+    cnt, s, ss = _moments_nb(planes.points, planes.plane, P)
+    group, normals, offsets = _merge_nb(np.ascontiguousarray(planes.normals, dtype=np.float64),
+                                        np.ascontiguousarray(planes.offsets, dtype=np.float64), cnt, s, ss,
+                                        float(np.cos(np.radians(angle_deg))), float(offset_m))
+    G = len(offsets)
+    if G == P:
+        return planes
+    classes = classify(normals, up, forward, left, slanted_min_deg, slanted_max_deg)
+    new_plane = group[planes.plane].astype(np.int32)
+    merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes,
+                    np.bincount(new_plane, minlength=G).astype(np.int64), replace(planes.stats), planes.shape,
+                    planes.method)
+    if drop_classes:
+        keep = ~np.isin(classes, drop_classes)
+        if not keep.all():
+            lost = int(merged.counts[~keep].sum())
+            merged = merged.select(keep)
+            st = merged.stats
+            merged.stats = FrameStats(st.pixels, st.ineligible, st.inliers - lost, st.dropped + lost, st.outliers,
+                                      st.remaining, len(merged), st.elapsed_ms)
+    merged.stats.planes = len(merged)
+    return merged

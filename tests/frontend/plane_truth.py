@@ -1,0 +1,76 @@
+"""Scoring planes against a renderer's ground truth (surface id per pixel, true plane per surface)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from frontend.camera import rays
+from frontend.planes import PLANE_CLASSES, Planes
+
+WALL_CLASSES = {PLANE_CLASSES.index(c) for c in ("left", "right", "front")}
+
+
+def camera_plane(plane_w: np.ndarray, world_from_cam: np.ndarray) -> np.ndarray:
+    """A world plane (a, b, c, d) in the camera frame, given the 4×4 world ← camera transform."""
+    R, t = world_from_cam[:3, :3], world_from_cam[:3, 3]
+    n = plane_w[:3]
+    return np.append(R.T @ n, n @ t + plane_w[3])
+
+
+def score(planes: Planes, sid: np.ndarray, truth: dict[int, tuple[str, np.ndarray]], world_from_cam: np.ndarray,
+          camera, sigma, depth_true: np.ndarray | None = None) -> dict:
+    """Accuracy of `planes` against the truth: {surface id: (class, world plane)}; sigma(z) is the noise model.
+
+    - on_surface: fraction of points within 3σ (along the ray) of the true plane of their plane's majority
+      surface (a plane that straddles two surfaces loses the minority's points);
+    - normal_err_deg: per plane, angle to its majority surface's normal (median over planes, and all);
+    - class_ok: fraction of points on known-class surfaces whose plane's class matches.
+    """
+    out = {"points": len(planes.points), "planes": len(planes)}
+    if len(planes.points) == 0:
+        return out | {"on_surface": 0.0, "median_normal_err_deg": 180.0, "class_ok": 0.0}
+    ray = rays(camera)
+    r, c = planes.pixels[:, 0], planes.pixels[:, 1]
+    psid = sid[r, c]
+    cam_planes = {k: camera_plane(np.asarray(p, float), world_from_cam) for k, (_, p) in truth.items()}
+    majority = np.zeros(len(planes), np.int64)
+    errs = np.zeros(len(planes))
+    for k in range(len(planes)):
+        ids = psid[planes.plane == k]
+        ids = ids[ids > 0]
+        if len(ids) == 0:
+            majority[k], errs[k] = 0, 90.0
+            continue
+        majority[k] = np.bincount(ids).argmax()
+        n_true = cam_planes[majority[k]][:3]
+        n_true = n_true / np.linalg.norm(n_true)
+        errs[k] = np.degrees(np.arccos(min(1.0, abs(float(planes.normals[k] @ n_true)))))
+    good = np.zeros(len(planes.points), bool)
+    z = planes.points[:, 2].astype(float)
+    for k in range(len(planes)):
+        if majority[k] == 0:
+            continue
+        sel = planes.plane == k
+        p = cam_planes[majority[k]]
+        rr = ray[r[sel], c[sel]]
+        z_hit = -p[3] / (rr @ p[:3])
+        good[sel] = np.abs(z[sel] - z_hit) <= 3 * sigma(z_hit)
+    pclass = planes.classes[planes.plane]
+    maj_cls = np.array([truth[m][0] if m in truth else "" for m in majority])[planes.plane]
+    ok = np.zeros(len(z), bool)
+    known = np.zeros(len(z), bool)
+    for name, allowed in (("ground", {0}), ("ceiling", {1}), ("wall", WALL_CLASSES), ("slanted", {5})):
+        sel = maj_cls == name
+        known |= sel
+        ok |= sel & np.isin(pclass, list(allowed))
+    return out | {"on_surface": float(good.mean()), "median_normal_err_deg": float(np.median(errs)),
+                  "normal_errs_deg": errs, "majority": majority,
+                  "class_ok": float(ok[known].mean()) if known.any() else 1.0}
+
+
+def recovered(planes: Planes, sid: np.ndarray, eligible: np.ndarray, surface_ids) -> float:
+    """Fraction of eligible pixels of the given surfaces that are plane points."""
+    want = np.isin(sid, list(surface_ids)) & eligible
+    got = np.zeros(sid.shape, bool)
+    got[planes.pixels[:, 0], planes.pixels[:, 1]] = True
+    return float((got & want).sum() / max(1, want.sum()))
