@@ -72,40 +72,135 @@ def read_map_server(yaml_path: str | Path) -> OccupancyGrid:
     if missing:
         raise MapError(f"{yp} lacks {', '.join(missing)}; a map_server YAML needs {', '.join(REQUIRED_KEYS)}")
     res = meta["resolution"]
-    if not isinstance(res, (int, float)) or not res > 0:
+    if isinstance(res, bool) or not isinstance(res, (int, float)) or not res > 0 or not np.isfinite(res):
         raise MapError(f"{yp}: resolution {res!r} must be a positive number of metres per pixel")
     origin = meta["origin"]
-    if not isinstance(origin, (list, tuple)) or len(origin) != 3:
-        raise MapError(f"{yp}: origin {origin!r} must be [x, y, yaw]")
-    ip = Path(meta["image"]) if os.path.isabs(str(meta["image"])) else yp.parent / str(meta["image"])
-    img = cv2.imread(str(ip), cv2.IMREAD_UNCHANGED) if ip.is_file() else None
+    if (not isinstance(origin, (list, tuple)) or len(origin) != 3
+            or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in origin)):
+        raise MapError(f"{yp}: origin {origin!r} must be [x, y, yaw] numbers")
+    mode = meta.get("mode", "trinary")
+    if mode not in ("trinary", "scale", "raw"):
+        raise MapError(f"{yp}: mode {mode!r} must be trinary, scale or raw")
+    try:
+        negate = int(meta.get("negate", 0))
+        occ_t = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
+        free_t = float(meta.get("free_thresh", FREE_THRESH))
+    except (TypeError, ValueError) as e:
+        raise MapError(f"{yp}: negate, occupied_thresh and free_thresh must be numbers ({e})") from e
+    if not 0 <= free_t < occ_t <= 1:
+        raise MapError(f"{yp}: thresholds must satisfy 0 ≤ free_thresh ({free_t}) < occupied_thresh ({occ_t}) ≤ 1")
+    if not isinstance(meta["image"], str) or not meta["image"]:
+        raise MapError(f"{yp}: image {meta['image']!r} must be the image file's name")
+    ip = Path(meta["image"]) if os.path.isabs(meta["image"]) else yp.parent / meta["image"]
+    img, alpha = _read_gray(ip)
     if img is None:
         raise MapError(f"{yp}: its image {ip} is missing or not an image")
-    if img.ndim == 3:  # colour images: map_server averages the channels
-        img = img[..., :3].mean(axis=2)
-    img = img.astype(np.float64)
-    if img.dtype != np.uint8 and img.max() > 255:
-        img = img / 257.0
-    occ = (255.0 - img) / 255.0 if not int(meta.get("negate", 0)) else img / 255.0
-    occ_t = float(meta.get("occupied_thresh", OCCUPIED_THRESH))
-    free_t = float(meta.get("free_thresh", FREE_THRESH))
-    data = np.full(img.shape, -1, np.int8)
-    mode = meta.get("mode", "trinary")
-    if mode == "scale":
-        mid = (occ > free_t) & (occ < occ_t)
-        data[mid] = np.round(99 * (occ[mid] - free_t) / (occ_t - free_t)).astype(np.int8)
-    data[occ >= occ_t] = 100
-    data[occ <= free_t] = 0
+    data = image_to_occupancy(img, alpha, mode, negate, occ_t, free_t)
     return OccupancyGrid(np.ascontiguousarray(data[::-1]), float(res), (float(origin[0]), float(origin[1]), float(origin[2])))
 
 
-def grid_picture(grid: OccupancyGrid) -> np.ndarray:
-    """BGR picture for people: white free, black occupied, grey unknown; row 0 = top."""
+def _read_gray(path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(grey 0..255 float, alpha 0..1 or None) of an image file, or (None, None) if it is not one."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if Path(path).is_file() else None
+    if img is None:
+        return None, None
+    scale = 65535.0 if img.dtype == np.uint16 else 255.0
+    img = img.astype(np.float64) * (255.0 / scale)
+    alpha = None
+    if img.ndim == 3:  # map_server averages the colour channels; a 2nd/4th channel is alpha
+        if img.shape[2] in (2, 4):
+            alpha = img[..., -1] / 255.0
+            img = img[..., :-1]
+        img = img.mean(axis=2)
+    return img, alpha
+
+
+def image_to_occupancy(img: np.ndarray, alpha: np.ndarray | None, mode: str, negate: int, occ_t: float,
+                       free_t: float) -> np.ndarray:
+    """map_server's rule (image row 0 = top): occ = (255 − v)/255 (v/255 with negate); occ > occupied_thresh →
+    100, occ < free_thresh → 0, else −1 (trinary) or rint(1 + 98·ratio) (scale); raw keeps v (0..100, else −1)."""
+    data = np.full(img.shape, -1, np.int8)
+    if mode == "raw":
+        v = np.rint(img)
+        ok = v <= 100
+        data[ok] = v[ok].astype(np.int8)
+        return data
+    occ = img / 255.0 if negate else (255.0 - img) / 255.0
+    if mode == "scale":
+        mid = (occ >= free_t) & (occ <= occ_t)
+        if alpha is not None:
+            mid &= alpha >= 1.0
+        data[mid] = np.rint(1 + 98 * (occ[mid] - free_t) / (occ_t - free_t)).astype(np.int8)
+    data[occ > occ_t] = 100
+    data[occ < free_t] = 0
+    return data
+
+
+def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0.5) -> OccupancyGrid:
+    """A floor blueprint as a grid of walls (100) and everything else (0): a map_server YAML (walls = its
+    occupied cells) or a plain image with `scale` metres per pixel (walls = pixels darker than dark·white,
+    origin at the lower-left pixel)."""
+    p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        if scale is not None:
+            raise MapError(f"{p} is a map_server YAML with its own resolution; drop the blueprint scale")
+        g = read_map_server(p)
+        return OccupancyGrid(np.where(g.data >= 100 * OCCUPIED_THRESH, 100, 0).astype(np.int8), g.resolution, g.origin)
+    if not p.is_file():
+        raise MapError(f"blueprint {p} does not exist; give an image (with its scale in m/pixel) or a map_server .yaml")
+    img, alpha = _read_gray(p)
+    if img is None:
+        raise MapError(f"blueprint {p} is not an image kosmap reads (PNG, PGM, JPEG, BMP, TIFF) nor a .yaml")
+    if scale is None:
+        raise MapError(f"blueprint {p} is a plain image: give its scale in metres per pixel (--blueprint-scale)")
+    if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0 or not np.isfinite(scale):
+        raise MapError(f"blueprint scale {scale!r} must be a positive number of metres per pixel")
+    walls = img < dark * 255.0
+    if alpha is not None:
+        walls &= alpha > 0.5
+    data = np.where(walls, 100, 0).astype(np.int8)
+    return OccupancyGrid(np.ascontiguousarray(data[::-1]), float(scale), (0.0, 0.0, 0.0))
+
+
+def grid_picture(grid: OccupancyGrid, trajectory: np.ndarray | None = None,
+                 color: tuple[int, int, int] = (200, 80, 0)) -> np.ndarray:
+    """BGR picture for people: white free, black occupied, grey unknown; row 0 = top; optional trajectory
+    (N×2 or N×3 map coordinates) drawn as a line."""
     d = grid.data.astype(np.int16)
     g = np.full(d.shape, 128, np.uint8)
     known = d >= 0
     g[known] = (255 - np.clip(d[known], 0, 100) * 255 // 100).astype(np.uint8)
-    return cv2.cvtColor(np.ascontiguousarray(g[::-1]), cv2.COLOR_GRAY2BGR)
+    img = cv2.cvtColor(np.ascontiguousarray(g[::-1]), cv2.COLOR_GRAY2BGR)
+    if trajectory is not None and len(trajectory) >= 1:
+        draw_trajectory(img, grid, np.asarray(trajectory, float)[:, :2], color)
+    return img
+
+
+def draw_trajectory(img: np.ndarray, grid: OccupancyGrid, xy: np.ndarray, color=(200, 80, 0), thickness: int = 1) -> None:
+    """Draw map points N×2 as a polyline on a picture of `grid` (row 0 = top), in place, sub-pixel exact."""
+    inv = np.linalg.inv(grid.pixel_to_world())
+    uv = xy @ inv[:2, :2].T + inv[:2, 2]  # cell units from the lower-left corner
+    px = np.column_stack((uv[:, 0], grid.height - uv[:, 1]))  # image x, y (row 0 = top)
+    shift = 4
+    pts = np.rint(px * (1 << shift)).astype(np.int32).reshape(-1, 1, 2)
+    cv2.polylines(img, [pts], False, color, thickness, cv2.LINE_AA, shift)
+
+
+def write_grid_mcap(grid: OccupancyGrid, path: str | Path, topic: str = "/map", stamp_ns: int = 0,
+                    trajectory: np.ndarray | None = None, stamps_ns: np.ndarray | None = None,
+                    path_topic: str = "/trajectory") -> Path:
+    """The grid as nav_msgs/OccupancyGrid in an MCAP (Foxglove, ROS 2), with the trajectory as nav_msgs/Path."""
+    from frontend.logs.writer import McapWriter
+
+    with McapWriter(path) as w:
+        w.write_grid(topic, int(stamp_ns), grid.frame_id, grid.data, grid.resolution, grid.origin)
+        if trajectory is not None and len(trajectory):
+            traj = np.asarray(trajectory, float)
+            if traj.shape[1] == 2:
+                traj = np.column_stack((traj, np.zeros(len(traj))))
+            st = np.zeros(len(traj), np.int64) if stamps_ns is None else np.asarray(stamps_ns, np.int64)
+            w.write_path(path_topic, int(stamp_ns), grid.frame_id, traj[:, :3], st)
+    return Path(path)
 
 
 def write_png(image_bgr: np.ndarray, path: str | Path) -> Path:
