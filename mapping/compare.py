@@ -34,6 +34,7 @@ class CompareConfig(StageConfig):
     align: bool = param(True, doc="align A to B before scoring")
     occupied_thresh: float = param(0.65, lo=0.0, hi=1.0, doc="a cell with occupancy ≥ this is a wall (map_server's occupied_thresh)")
     free_thresh: float = param(0.5, lo=0.0, hi=1.0, doc="a known cell with occupancy < this is free space")
+    walls: str = param("surface", choices=("surface", "all"), doc="wall cells scored: those next to free space (what a range sensor sees of a thick wall) or all occupied cells")
     blueprint_dark: float = param(0.5, lo=0.0, hi=1.0, lo_open=True, doc="blueprint pixels darker than this fraction of white are walls")
     sweep_step_deg: float = param(2.0, lo=0.1, hi=15.0, doc="rotation step of the global alignment search", unit="deg")
     coarse_resolution: float = param(0.0, lo=0.0, doc="lattice of the global search (0 = automatic: ≥ 0.15 m, ≤ 150 cells across)", unit="m")
@@ -69,9 +70,26 @@ def free(grid: OccupancyGrid, cfg: CompareConfig) -> np.ndarray:
     return (d >= 0) & (d < 100 * cfg.free_thresh)
 
 
+def wall_mask(data: np.ndarray, cfg: CompareConfig) -> np.ndarray:
+    """The wall cells that are scored and aligned: every occupied cell (walls = "all"), or those with free
+    space among their 8 neighbours (walls = "surface": a range sensor sees only a wall's faces, so a
+    blueprint's 15 cm wall counts by its faces, not its inside, nor its face towards the unknown outside).
+    A map without any free space keeps all its occupied cells."""
+    import cv2
+
+    d = data.astype(np.int16)
+    occ = d >= round(100 * cfg.occupied_thresh)
+    if cfg.walls == "all":
+        return occ
+    fr = (d >= 0) & (d < 100 * cfg.free_thresh)
+    if not fr.any():
+        return occ
+    return occ & (cv2.dilate(fr.astype(np.uint8), np.ones((3, 3), np.uint8)) > 0)
+
+
 def occupied_points(grid: OccupancyGrid, cfg: CompareConfig) -> np.ndarray:
-    """Map coordinates (N×2) of the centres of the wall cells."""
-    rows, cols = np.nonzero(occupied(grid, cfg))
+    """Map coordinates (N×2) of the centres of the wall cells (see wall_mask)."""
+    rows, cols = np.nonzero(wall_mask(grid.data, cfg))
     return grid.world_of(cols, rows)
 
 
@@ -244,9 +262,11 @@ class Canvas:
     width: int
     height: int
 
-    def sample(self, grid: OccupancyGrid, T: np.ndarray) -> np.ndarray:
-        """grid (whose frame maps into B's by T) resampled to the canvas by nearest cell; −1 outside it."""
-        out = np.full((self.height, self.width), -1, np.int8)
+    def sample(self, grid: OccupancyGrid, T: np.ndarray, values: np.ndarray | None = None, fill=-1) -> np.ndarray:
+        """grid (whose frame maps into B's by T) resampled to the canvas by nearest cell (or `values`, an
+        array of the grid's shape); `fill` outside it."""
+        values = grid.data if values is None else values
+        out = np.full((self.height, self.width), fill, values.dtype)
         M = np.linalg.inv(grid.pixel_to_world()) @ np.linalg.inv(T)  # canvas world → grid (col, row) continuous
         cols = self.origin[0] + (np.arange(self.width) + 0.5) * self.resolution
         for r0 in range(0, self.height, 256):
@@ -256,7 +276,7 @@ class Canvas:
             v = np.floor(M[1, 0] * X + M[1, 1] * Y + M[1, 2]).astype(np.int64)
             ok = (u >= 0) & (u < grid.width) & (v >= 0) & (v < grid.height)
             blk = out[r0:r0 + len(rows)]
-            blk[ok] = grid.data[v[ok], u[ok]]
+            blk[ok] = values[v[ok], u[ok]]
         return out
 
 
@@ -286,6 +306,8 @@ class Comparison:
     canvas: Canvas
     a: np.ndarray = field(repr=False)  # A resampled on the canvas (int8, −1 / 0..100)
     b: np.ndarray = field(repr=False)
+    wall_a: np.ndarray = field(repr=False)  # scored wall cells of A on the canvas
+    wall_b: np.ndarray = field(repr=False)
     d_to_a: np.ndarray = field(repr=False)  # metres from each canvas cell to A's nearest wall
     d_to_b: np.ndarray = field(repr=False)
     cfg: CompareConfig = field(repr=False)
@@ -313,16 +335,18 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
     T = alignment.matrix
     cv = make_canvas(a, b, T, cfg.max_canvas_cells)
     A, B = cv.sample(a, T), cv.sample(b, np.eye(3))
+    wallA = cv.sample(a, T, wall_mask(a.data, cfg), False)
+    wallB = cv.sample(b, np.eye(3), wall_mask(b.data, cfg), False)
     occ_t, free_t = round(100 * cfg.occupied_thresh), 100 * cfg.free_thresh
     occA, occB = A >= occ_t, B >= occ_t
     freeA, freeB = (A >= 0) & (A < free_t), (B >= 0) & (B < free_t)
-    if not occA.any() or not occB.any():
-        raise CompareError(f"map {'A' if not occA.any() else 'B'} has no wall cells "
+    if not wallA.any() or not wallB.any():
+        raise CompareError(f"map {'A' if not wallA.any() else 'B'} has no wall cells "
                            f"(occupancy ≥ {cfg.occupied_thresh}) where the maps overlap: nothing to compare")
     r = cv.resolution
-    dA, dB = _edt(occA) * r, _edt(occB) * r
+    dA, dB = _edt(wallA) * r, _edt(wallB) * r
     dKnownA = _edt(A >= 0) * r
-    a2b, b2a = dB[occA], dA[occB]
+    a2b, b2a = dB[wallA], dA[wallB]
     eps = 1e-6
     per_tol = {}
     for tol in cfg.tolerances:
@@ -330,7 +354,7 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
         rc = float(np.mean(b2a <= tol + eps))
         per_tol[f"{tol:.2f}"] = {"tolerance": tol, "precision": p, "recall": rc,
                                  "f1": 2 * p * rc / (p + rc) if p + rc > 0 else 0.0,
-                                 "coverage": float(np.mean(dKnownA[occB] <= tol + eps))}
+                                 "coverage": float(np.mean(dKnownA[wallB] <= tol + eps))}
     definite = (occA | freeA) & (occB | freeB)
     both_free = freeA & freeB & definite
     any_free = (freeA | freeB) & definite
@@ -338,9 +362,9 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
         "alignment": alignment.as_dict(),
         "canvas": {"resolution": r, "width": cv.width, "height": cv.height, "origin": list(cv.origin)},
         "maps": {"a": {"resolution": a.resolution, "width": a.width, "height": a.height, "origin": list(a.origin),
-                       "wall_cells": int((a.data >= occ_t).sum())},
+                       "wall_cells": int(wall_mask(a.data, cfg).sum())},
                  "b": {"resolution": b.resolution, "width": b.width, "height": b.height, "origin": list(b.origin),
-                       "wall_cells": int((b.data >= occ_t).sum())}},
+                       "wall_cells": int(wall_mask(b.data, cfg).sum())}},
         "tolerances": per_tol,
         "distance_a_to_b": _stats(a2b),
         "distance_b_to_a": _stats(b2a),
@@ -349,23 +373,26 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
                  "a_free_on_b_walls": float(np.mean(occB[freeA])) if freeA.any() else None,
                  "cells_compared": int(definite.sum())},
     }
-    return Comparison(metrics, cv, A, B, dA, dB, cfg)
+    return Comparison(metrics, cv, A, B, wallA, wallB, dA, dB, cfg)
 
 
 # ---- outputs ----------------------------------------------------------------------------------------------------
 
 def overlay_picture(c: Comparison) -> np.ndarray:
     """BGR overlay like the thesis's figures: A's walls red, B's green, agreement (within the smallest
-    tolerance) black; free space white, unknown grey. Row 0 = top."""
+    tolerance) black; occupied cells that are not scored (inside thick walls) pale; free space white,
+    unknown grey. Row 0 = top."""
     tol = min(c.cfg.tolerances) + 1e-6
     occ_t, free_t = round(100 * c.cfg.occupied_thresh), 100 * c.cfg.free_thresh
     occA, occB = c.a >= occ_t, c.b >= occ_t
     img = np.full(c.a.shape + (3,), 205, np.uint8)
     free_any = ((c.a >= 0) & (c.a < free_t)) | ((c.b >= 0) & (c.b < free_t))
     img[free_any] = 255
-    img[occB] = (0, 170, 0)
-    img[occA] = (0, 0, 230)
-    img[(occA & (c.d_to_b <= tol)) | (occB & (c.d_to_a <= tol))] = 0
+    img[occB] = (170, 225, 170)
+    img[occA & ~c.wall_b] = (170, 170, 240)
+    img[c.wall_b] = (0, 170, 0)
+    img[c.wall_a] = (0, 0, 230)
+    img[(c.wall_a & (c.d_to_b <= tol)) | (c.wall_b & (c.d_to_a <= tol))] = 0
     return np.ascontiguousarray(img[::-1])
 
 

@@ -136,16 +136,29 @@ def image_to_occupancy(img: np.ndarray, alpha: np.ndarray | None, mode: str, neg
     return data
 
 
+def outside_unknown(data: np.ndarray) -> np.ndarray:
+    """A plan with the non-wall cells reachable from its border (4-connected, without crossing a wall) set
+    unknown (−1): a blueprint says nothing about the outside of the building."""
+    import cv2
+
+    n, lab = cv2.connectedComponents((data < 100).astype(np.uint8), connectivity=4)
+    border = np.unique(np.concatenate((lab[0], lab[-1], lab[:, 0], lab[:, -1])))
+    out = data.copy()
+    out[np.isin(lab, border[border > 0])] = -1
+    return out
+
+
 def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0.5) -> OccupancyGrid:
-    """A floor blueprint as a grid of walls (100) and everything else (0): a map_server YAML (walls = its
-    occupied cells) or a plain image with `scale` metres per pixel (walls = pixels darker than dark·white,
-    origin at the lower-left pixel)."""
+    """A floor blueprint as a grid of walls (100), the inside (0) and the outside (−1, reached from the border
+    without crossing a wall): a map_server YAML (walls = its occupied cells) or a plain image with `scale`
+    metres per pixel (walls = pixels darker than dark·white, origin at the lower-left pixel)."""
     p = Path(path)
     if p.suffix.lower() in (".yaml", ".yml"):
         if scale is not None:
             raise MapError(f"{p} is a map_server YAML with its own resolution; drop the blueprint scale")
         g = read_map_server(p)
-        return OccupancyGrid(np.where(g.data >= 100 * OCCUPIED_THRESH, 100, 0).astype(np.int8), g.resolution, g.origin)
+        return OccupancyGrid(outside_unknown(np.where(g.data >= 100 * OCCUPIED_THRESH, 100, 0).astype(np.int8)),
+                             g.resolution, g.origin)
     if not p.is_file():
         raise MapError(f"blueprint {p} does not exist; give an image (with its scale in m/pixel) or a map_server .yaml")
     img, alpha = _read_gray(p)
@@ -158,7 +171,7 @@ def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0
     walls = img < dark * 255.0
     if alpha is not None:
         walls &= alpha > 0.5
-    data = np.where(walls, 100, 0).astype(np.int8)
+    data = outside_unknown(np.where(walls, 100, 0).astype(np.int8))
     return OccupancyGrid(np.ascontiguousarray(data[::-1]), float(scale), (0.0, 0.0, 0.0))
 
 

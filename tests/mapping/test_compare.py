@@ -117,3 +117,29 @@ def test_empty_map_is_a_clear_error():
 
     with pytest.raises(CompareError, match="wall cells"):
         compare(empty, a)
+
+
+def test_thick_blueprint_walls_count_by_their_faces():
+    """A laser map sees only the inner faces of a plan's thick outer walls: scored by faces (the default) it
+    matches the plan; scoring every occupied cell would punish it for what it can never see."""
+    import cv2
+
+    from mapping.grid import build_grid
+    from mapping.mapio import outside_unknown
+    from tests.mapping.worlds import scan_at
+
+    poses = np.array([(x, y, 0.0) for x, y in [(1.5, 1.5), (1.5, 5.5), (5, 2), (8.5, 3), (5, 4.5), (6, 6.5), (2, 3.5)]])
+    grid = build_grid(poses, [scan_at(p, WORLD) for p in poses])
+    thin = wall_grid(WORLD, 0.05)
+    wall = thin.data == 100
+    outside = outside_unknown(thin.data) == -1
+    thick = cv2.dilate(wall.astype(np.uint8), np.ones((7, 7), np.uint8)) > 0  # outer walls 20 cm thick, outwards
+    data = np.where(wall | (thick & outside), 100, np.where(outside, -1, 0)).astype(np.int8)
+    plan = OccupancyGrid(data, thin.resolution, thin.origin)
+    faces = compare(grid, plan, CompareConfig(align=False)).metrics["tolerances"]["0.05"]
+    every = compare(grid, plan, CompareConfig(align=False, walls="all")).metrics["tolerances"]["0.05"]
+    assert faces["f1"] >= 0.95 and faces["precision"] > 0.99
+    assert every["recall"] < 0.6 and every["precision"] > 0.99
+    aligned = compare(grid, plan).metrics  # and the alignment is not pulled into the thick walls
+    assert np.hypot(aligned["alignment"]["x"], aligned["alignment"]["y"]) < 0.03
+    assert abs(aligned["alignment"]["yaw_deg"]) < 0.3

@@ -80,14 +80,17 @@ def test_other_tools_maps_negate_scale_raw_colour(tmp_path):
 
 def test_blueprint_from_plain_image_and_yaml(tmp_path):
     img = np.full((20, 30), 255, np.uint8)
-    img[:, 5] = 90  # darker than half white: a wall
-    img[:, 20] = 180  # light grey: not a wall
-    img[0, :] = 0  # top wall (dark)
+    cv2.rectangle(img, (2, 2), (27, 17), 0, 1)  # a closed room (dark walls), white outside
+    img[2:12, 10] = 90  # darker than half white: an inner wall
+    img[3:17, 20] = 180  # light grey inside: not a wall
     cv2.imwrite(str(tmp_path / "bp.png"), img)
     bp = read_blueprint(tmp_path / "bp.png", scale=0.025)
     assert bp.resolution == 0.025 and bp.origin == (0.0, 0.0, 0.0)
-    assert (bp.data[-1] == 100).all() and (bp.data[:, 5] == 100).all() and (bp.data[:-1, 20] == 0).all()
-    assert set(np.unique(bp.data)) == {0, 100}
+    top = bp.data[::-1]  # image orientation
+    assert (top[2, 2:28] == 100).all() and (top[2:12, 10] == 100).all() and (top[3:17, 20] == 0).all()
+    assert (top[3:17, 3:27][top[3:17, 3:27] != 100] == 0).all()  # the inside is free
+    assert (top[:2] == -1).all() and (top[:, :2] == -1).all()  # the outside unknown
+    assert set(np.unique(bp.data)) == {-1, 0, 100}
     y = write_map_server(bp, tmp_path / "bp.yaml")
     bp2 = read_blueprint(y)
     assert np.array_equal(bp2.data, bp.data)
