@@ -167,6 +167,12 @@ def pose_stamped_msg(ts, t_ns: int, frame_id: str, x: float, y: float, yaw: floa
                                                      pose=_pose(ts, (x, y, 0.0), yaw_to_quat(yaw)))
 
 
+def pose_array_msg(ts, t_ns: int, frame_id: str, positions: np.ndarray, quats: np.ndarray):
+    """geometry_msgs/PoseArray from N×3 positions and N×4 quaternions (x, y, z, w), e.g. plane normals as arrows."""
+    items = [_pose(ts, p, q) for p, q in zip(np.asarray(positions, float), np.asarray(quats, float))]
+    return ts.types["geometry_msgs/msg/PoseArray"](header=header(ts, t_ns, frame_id), poses=items)
+
+
 def path_msg(ts, t_ns: int, frame_id: str, poses: np.ndarray, stamps_ns: np.ndarray):
     """nav_msgs/Path from N×3 (x, y, yaw) poses."""
     items = [pose_stamped_msg(ts, int(s), frame_id, *p) for s, p in zip(stamps_ns, np.asarray(poses, float))]

@@ -1,0 +1,170 @@
+"""A folder of depth images (16-bit PNG/PGM) with a camera file, read like a log.
+
+The camera file (YAML or JSON) gives `fx, fy, cx, cy` and `depth_scale` (image units per metre: 1000 for
+millimetres, 5000 for TUM); `width`/`height` are optional. Open3D's `{"width", "height", "intrinsic_matrix"}`
+(column-major) and a row-major `K` are read too. Frames are stamped by their file name when it is a
+number (TUM's `1305031102.160407.png`), else at `fps` from zero.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Iterable, Iterator
+from pathlib import Path
+
+import numpy as np
+
+from frontend.errors import LogError
+from frontend.logs import topics as T
+from frontend.logs.base import LogInfo, LogReader, TopicInfo
+from frontend.records import CameraModel, DepthFrame, seconds_to_ns
+
+IMAGE_SUFFIXES = (".png", ".pgm", ".tif", ".tiff")
+CAMERA_NAMES = ("camera.yaml", "camera.yml", "camera.json", "intrinsics.yaml", "intrinsics.json", "calibration.yaml")
+DEPTH_TOPIC = "/camera/depth/image"
+INFO_TOPIC = "/camera/depth/camera_info"
+FRAME_ID = "camera_depth_optical_frame"
+
+
+def _natural(p: Path):
+    try:
+        return (0, float(p.stem), p.name)
+    except ValueError:
+        return (1, 0.0, [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)])
+
+
+def depth_files(folder: Path) -> list[Path]:
+    """The depth images of a folder (or of its `depth/` subfolder), in numeric/natural order."""
+    for d in (folder, folder / "depth"):
+        files = [p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and "rgb" not in p.name.lower()
+                 and "color" not in p.name.lower()] if d.is_dir() else []
+        if files:
+            return sorted(files, key=_natural)
+    return []
+
+
+def read_camera_file(path: str | Path) -> tuple[dict, float]:
+    """{fx, fy, cx, cy[, width, height]} and depth_scale (units per metre, default 1000) from YAML/JSON."""
+    p = Path(path)
+    try:
+        text = p.read_text()
+        if p.suffix.lower() == ".json":
+            data = json.loads(text)
+        else:
+            import yaml
+
+            data = yaml.safe_load(text)
+    except (OSError, ValueError) as e:
+        raise LogError(f"cannot read camera file {p}: {e}; it must be YAML or JSON with fx, fy, cx, cy, depth_scale") from e
+    if not isinstance(data, dict):
+        raise LogError(f"camera file {p} must be a mapping with fx, fy, cx, cy, depth_scale")
+    data = {str(k).lower(): v for k, v in data.items()}
+    cam: dict = {}
+    try:
+        if "intrinsic_matrix" in data:  # Open3D PinholeCameraIntrinsic JSON: column-major 3×3
+            K = np.asarray(data["intrinsic_matrix"], float).reshape(3, 3).T
+            cam.update(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
+        elif "k" in data:
+            K = np.asarray(data["k"], float).reshape(3, 3)
+            cam.update(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
+        else:
+            cam.update({k: float(data[k]) for k in ("fx", "fy", "cx", "cy")})
+    except (KeyError, ValueError, TypeError) as e:
+        raise LogError(f"camera file {p} lacks the intrinsics ({e}); give fx, fy, cx, cy (pixels) and depth_scale") from e
+    for k in ("width", "height"):
+        if k in data:
+            cam[k] = int(data[k])
+    scale = float(data.get("depth_scale", 1000.0))
+    if scale <= 0 or cam["fx"] <= 0 or cam["fy"] <= 0:
+        raise LogError(f"camera file {p}: fx, fy and depth_scale must be positive")
+    return cam, scale
+
+
+def find_camera_file(folder: Path) -> Path | None:
+    for d in (folder, folder.parent):
+        for name in CAMERA_NAMES:
+            if (d / name).is_file():
+                return d / name
+    return None
+
+
+class ImageFolder(LogReader):
+    """Depth images in a folder, as a log with one depth topic and one camera info."""
+
+    format = "depth image folder"
+
+    def __init__(self, path: str | Path, camera_file: str | Path | None = None, depth_scale: float | None = None,
+                 fps: float = 30.0, frame_id: str = FRAME_ID) -> None:
+        super().__init__(Path(path))
+        if not self.path.is_dir():
+            raise LogError(f"{self.path} is not a folder of depth images")
+        self.files = depth_files(self.path)
+        if not self.files:
+            raise LogError(f"{self.path} has no depth images ({', '.join(IMAGE_SUFFIXES)}), nor a depth/ subfolder with them")
+        cf = Path(camera_file) if camera_file else find_camera_file(self.path)
+        self.camera_file = cf
+        self.intrinsics: dict | None = None
+        self.depth_scale = 1000.0
+        if cf is not None:
+            self.intrinsics, self.depth_scale = read_camera_file(cf)
+        else:
+            self._warn(f"no camera file in {self.path}: using the field-of-view model and depth in millimetres "
+                       f"(give --camera FILE with fx, fy, cx, cy, depth_scale)")
+        if depth_scale is not None:
+            self.depth_scale = float(depth_scale)
+        self.fps = fps
+        self.frame_id = frame_id
+        self.stamps_ns = self._stamps()
+
+    def _stamps(self) -> list[int]:
+        try:
+            vals = [float(p.stem) for p in self.files]
+            if len(set(vals)) == len(vals):
+                return [seconds_to_ns(v) for v in vals]
+        except ValueError:
+            pass
+        return [seconds_to_ns(i / self.fps) for i in range(len(self.files))]
+
+    def info(self) -> LogInfo:
+        topics = [TopicInfo(DEPTH_TOPIC, T.IMAGE, len(self.files))]
+        if self.intrinsics is not None:
+            topics.append(TopicInfo(INFO_TOPIC, T.CAMERA_INFO, 1))
+        notes = [f"camera file {self.camera_file}, depth_scale {self.depth_scale:g} per metre"] if self.camera_file else []
+        return LogInfo(self.path, self.format, self.stamps_ns[0], self.stamps_ns[-1], topics, notes=notes)
+
+    def read_image(self, path: Path) -> np.ndarray:
+        import cv2
+
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise LogError(f"cannot read depth image {path}; it must be a 16-bit PNG or PGM")
+        if img.ndim != 2 or img.dtype not in (np.uint16, np.float32):
+            raise LogError(f"{path} is not a single-channel 16-bit depth image ({img.dtype}, shape {img.shape})")
+        return img
+
+    def camera(self, shape: tuple[int, int]) -> CameraModel | None:
+        if self.intrinsics is None:
+            return None
+        c = self.intrinsics
+        K = np.array([[c["fx"], 0.0, c["cx"]], [0.0, c["fy"], c["cy"]], [0.0, 0.0, 1.0]])
+        return CameraModel(c.get("width", shape[1]), c.get("height", shape[0]), K, np.zeros(5), "plumb_bob",
+                           self.frame_id, INFO_TOPIC, self.stamps_ns[0])
+
+    def read(self, topics: Iterable[str] | None = None) -> Iterator[DepthFrame | CameraModel]:
+        want = set(topics) if topics is not None else {DEPTH_TOPIC, INFO_TOPIC}
+        sent_info = False
+        for path, t in zip(self.files, self.stamps_ns):
+            img = self.read_image(path)
+            if not sent_info and INFO_TOPIC in want:
+                cam = self.camera(img.shape)
+                if cam is not None:
+                    yield cam
+                sent_info = True
+            if DEPTH_TOPIC not in want:
+                break
+            if img.dtype == np.uint16 and self.depth_scale == 1000.0:
+                yield DepthFrame(t, img, "16UC1", self.frame_id, DEPTH_TOPIC)
+            else:
+                m = img.astype(np.float32) / np.float32(self.depth_scale if img.dtype == np.uint16 else 1.0)
+                yield DepthFrame(t, m, "32FC1", self.frame_id, DEPTH_TOPIC)

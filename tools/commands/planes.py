@@ -1,0 +1,291 @@
+"""`kosmap planes LOG|FOLDER --out DIR`: FSPF+ (or FSPF) over every depth frame, with Table 5.2 statistics,
+plane points and normals (npz and MCAP), processed depth PNGs and Fig. 5.2-style figures."""
+
+from __future__ import annotations
+
+import csv
+import json
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Optional
+
+import numpy as np
+import typer
+
+from frontend.camera import camera_for, camera_mount, config_mount
+from frontend.errors import KosmapError, LogError
+from frontend.fspf import filter_planes, frame_seed, warmup
+from frontend.planes import Planes
+from frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from tools import options as O
+
+CLOUD_TOPIC = "/kosmap/planes/points"
+NORMALS_TOPIC = "/kosmap/planes/normals"
+STATS_COLUMNS = ("frame", "source", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
+                 "planes", "elapsed_ms")
+
+
+@dataclass
+class Item:
+    """One depth frame to filter, with everything it needs."""
+
+    index: int
+    stamp_ns: int
+    depth: np.ndarray  # metres
+    camera: CameraModel
+    mount: Transform
+    source: str  # topic, or dataset/name
+    frame_id: str
+
+
+def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | None,
+                every: int, limit: int | None) -> tuple[int, Iterator[Item], list[str]]:
+    """Frames of a log (MCAP, bag) or of a folder of depth images."""
+    from frontend.logs import detect_topics, open_log
+    from frontend.logs.images import ImageFolder
+
+    log = ImageFolder(path, camera_file, depth_scale) if path.is_dir() else open_log(path)
+    info = log.info()
+    det = detect_topics(info.types(), cfg.topics)
+    if not det.depth:
+        log.close()
+        raise LogError(f"{path} has no depth image topic (sensor_msgs/Image with 'depth' in its name); "
+                       f"name one with --depth-topic")
+    total = sum(info.count(t) for t in det.depth)
+    total = len(range(0, total, every))
+    if limit is not None:
+        total = min(total, limit)
+    wanted = list(det.depth) + [i for i in det.info.values() if i] + ([det.tf_static] if det.tf_static else [])
+
+    def gen() -> Iterator[Item]:
+        infos: dict[str, CameraModel] = {}
+        statics: list[Transforms] = []
+        mounts: dict[str, Transform] = {}
+        seen = 0
+        done = 0
+        try:
+            for rec in log.read(wanted):
+                if isinstance(rec, Transforms):
+                    statics.append(rec)
+                    mounts.clear()
+                elif isinstance(rec, CameraModel):
+                    infos[rec.topic] = rec
+                elif isinstance(rec, DepthFrame):
+                    k = seen
+                    seen += 1
+                    if k % every:
+                        continue
+                    if limit is not None and done >= limit:
+                        break
+                    depth = rec.meters()
+                    cam = camera_for(depth.shape, infos.get(det.info.get(rec.topic) or ""), cfg.depth, rec.frame_id)
+                    if rec.frame_id not in mounts:
+                        mounts[rec.frame_id] = camera_mount(statics, rec.frame_id, cfg.depth)[0]
+                    yield Item(k, rec.stamp_ns, depth, cam, mounts[rec.frame_id], rec.topic, rec.frame_id or "camera")
+                    done += 1
+        finally:
+            log.close()
+
+    return total, gen(), log.warnings
+
+
+def _dataset_frames(folders: list[Path], cfg, every: int, limit: int | None) -> tuple[int, Iterator[Item], list[str]]:
+    from tools.datasets import iter_dataset
+
+    total = sum(sum(1 for _ in _names(f, every, limit)) for f in folders)
+
+    def gen() -> Iterator[Item]:
+        k = 0
+        for f in folders:
+            for s in iter_dataset(f, limit, every):
+                cam = camera_for(s.depth.shape, s.camera, cfg.depth)
+                yield Item(k, int(round(s.stamp * 1e9)), s.depth, cam, config_mount(cfg.depth, "camera"),
+                           f"{s.dataset}/{s.name}", "camera")
+                k += 1
+
+    return total, gen(), []
+
+
+def _names(folder: Path, every: int, limit: int | None) -> list[str]:
+    """The frame names of a dataset folder without decoding them (for the progress bar)."""
+    n = folder.name
+    if n == "tum_fr1_xyz":
+        names = [ln for ln in (folder / "depth_included.txt").read_text().splitlines() if ln.strip()]
+    elif n == "open3d_rgbd_formats":
+        names = ["TUM", "SUN", "NYU"]
+    elif n == "slambook2_ch5_rgbd":
+        names = [p.name for p in (folder / "depth").glob("*.pgm")]
+    elif n == "cape_tunnel_frame":
+        names = ["depth_0"]
+    else:
+        names = [p.name for p in folder.glob("*.pcd")]
+    return names[::every][:limit]
+
+
+def normal_quaternions(normals: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) turning the x axis onto each normal (arrows in Foxglove's PoseArray)."""
+    n = np.asarray(normals, float)
+    q = np.column_stack((np.zeros(len(n)), -n[:, 2], n[:, 1], 1.0 + n[:, 0]))
+    bad = q[:, 3] < 1e-9  # normal along −x: half a turn about z
+    q[bad] = [0.0, 0.0, 1.0, 0.0]
+    return q / np.linalg.norm(q, axis=1, keepdims=True)
+
+
+def _save_npz(path: Path, planes: Planes, item: Item) -> None:
+    np.savez_compressed(path, points=planes.points, plane=planes.plane.astype(np.int32),
+                        pixels=planes.pixels.astype(np.uint16), normals=planes.normals, offsets=planes.offsets,
+                        classes=planes.classes, counts=planes.counts, stamp_ns=np.int64(item.stamp_ns),
+                        shape=np.array(planes.shape), frame_id=np.array(item.frame_id), source=np.array(item.source),
+                        K=item.camera.K, mount=item.mount.matrix())
+
+
+def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) -> None:
+    from frontend.logs import convert
+
+    p, idx = planes.points, planes.plane
+    if len(p) > max_points:
+        sel = np.sort(np.random.default_rng(seed).choice(len(p), max_points, replace=False))
+        p, idx = p[sel], idx[sel]
+    cls = planes.classes[idx] if len(idx) else np.zeros(0)
+    t = item.stamp_ns
+    writer.write_pointcloud(CLOUD_TOPIC, t, item.frame_id, p,
+                            {"plane": idx.astype(np.float32), "class": cls.astype(np.float32), "depth": p[:, 2]})
+    centroids = np.zeros((len(planes), 3))
+    if len(planes):
+        for k in range(3):
+            centroids[:, k] = np.bincount(planes.plane, planes.points[:, k], minlength=len(planes))
+        centroids /= np.maximum(planes.counts, 1)[:, None]
+    msg = convert.pose_array_msg(writer.ts, t, item.frame_id, centroids, normal_quaternions(planes.normals))
+    writer.write_msg(NORMALS_TOPIC, "geometry_msgs/msg/PoseArray", msg, t)
+
+
+def _summary_row(rows: list[dict]) -> dict:
+    out: dict = {"frame": "summary", "source": f"{len(rows)} frames", "stamp": ""}
+    for c in STATS_COLUMNS[3:]:
+        vals = np.array([r[c] for r in rows], float)
+        out[c] = float(vals.mean()) if len(vals) else 0.0
+    return out
+
+
+def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, depth_scale: float | None = None,
+               save_depth: bool = False, figures: int = 3, every: int = 1, limit: int | None = None,
+               mcap: bool = True, npz: bool = True, mcap_points: int = 30000, progress: bool = True) -> dict:
+    """Filter every frame of `path` into `out`; returns the summary (also written as summary.json)."""
+    from mapping.config import write_config
+    from tools.datasets import detect
+
+    if not path.exists():
+        raise KosmapError(f"{path} does not exist; give a log (.mcap, .bag), a folder of depth images, or a dataset folder")
+    if every < 1:
+        raise KosmapError(f"--every {every} must be at least 1")
+    folders = detect(path) if path.is_dir() else []
+    if folders:
+        total, frames, warnings = _dataset_frames(folders, cfg, every, limit)
+    else:
+        total, frames, warnings = _log_frames(path, cfg, camera_file, depth_scale, every, limit)
+    out.mkdir(parents=True, exist_ok=True)
+    write_config(cfg, out / "config.toml")
+    warmup()
+    fig_step = max(1, -(-total // figures)) if figures > 0 else 0
+    writer = None
+    if mcap:
+        from frontend.logs.writer import McapWriter
+
+        writer = McapWriter(out / "planes.mcap")
+    rows: list[dict] = []
+    mounts_written: set[str] = set()
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    bar = Progress(TextColumn("planes"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                   TextColumn("{task.fields[ms]}"), disable=not progress, transient=False)
+    try:
+        with bar:
+            task = bar.add_task("planes", total=total, ms="")
+            for n, item in enumerate(frames):
+                planes = filter_planes(item.depth, item.camera, cfg.fspf, cfg.depth, item.mount,
+                                       seed=frame_seed(cfg.fspf, item.index))
+                name = f"{n:06d}"
+                row = {"frame": name, "source": item.source, "stamp": f"{item.stamp_ns * 1e-9:.6f}", **planes.stats.row()}
+                rows.append(row)
+                if npz:
+                    (out / "planes").mkdir(exist_ok=True)
+                    _save_npz(out / "planes" / f"{name}.npz", planes, item)
+                if save_depth:
+                    import cv2
+
+                    (out / "depth").mkdir(exist_ok=True)
+                    mm = np.clip(np.round(planes.depth_image() * 1000.0), 0, 65535).astype(np.uint16)
+                    cv2.imwrite(str(out / "depth" / f"{name}.png"), mm)
+                if fig_step and n % fig_step == 0:
+                    from tools.plane_figures import plane_figure
+
+                    plane_figure(planes, out / "figures" / f"{name}.png", f"{item.source}",
+                                 (cfg.depth.min_depth, cfg.depth.max_depth))
+                if writer is not None:
+                    if item.frame_id not in mounts_written:
+                        tf = Transform(item.mount.parent, item.frame_id, item.mount.translation, item.mount.rotation,
+                                       item.stamp_ns)
+                        writer.write(Transforms(item.stamp_ns, (tf,), True, "/tf_static"))
+                        mounts_written.add(item.frame_id)
+                    _write_mcap(writer, planes, item, mcap_points, n)
+                bar.update(task, advance=1, ms=f"{planes.stats.elapsed_ms:.1f} ms")
+    except BaseException:
+        if writer is not None:
+            writer.abort()
+        raise
+    if writer is not None:
+        writer.close()
+    if not rows:
+        raise KosmapError(f"{path} yielded no depth frames; check --every/--max-frames and the depth topic")
+    summary_row = _summary_row(rows)
+    with open(out / "stats.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=STATS_COLUMNS)
+        w.writeheader()
+        for r in rows + [summary_row]:
+            w.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in r.items()})
+    ms = np.array([r["elapsed_ms"] for r in rows])
+    summary = {"input": str(path), "method": cfg.fspf.method, "backend": cfg.fspf.backend, "frames": len(rows),
+               "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
+               **{k: summary_row[k] for k in STATS_COLUMNS[3:]}, "warnings": list(warnings)}
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def planes(
+        source: Annotated[Path, typer.Argument(help="Log (.mcap, .bag), a folder of depth PNGs with a camera file, "
+                                                     "or a folder of ../shared/data/depth datasets.")],
+        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+        method: Annotated[Optional[str], typer.Option("--method", help="fspf+ (thesis, default) or fspf (Biswas).")] = None,
+        save_depth: Annotated[bool, typer.Option("--save-depth", help="Write the processed depth (plane points only) as 16-bit PNG (mm).")] = False,
+        camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy, depth_scale) for an image folder.")] = None,
+        depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Image units per metre (1000 = mm, 5000 = TUM); overrides the camera file.")] = None,
+        figures: Annotated[int, typer.Option("--figures", help="How many frames get a Fig. 5.2-style figure (spread over the run).")] = 3,
+        every: Annotated[int, typer.Option("--every", help="Process every Nth depth frame.")] = 1,
+        max_frames: Annotated[Optional[int], typer.Option("--max-frames", help="Stop after this many frames.")] = None,
+        seed: Annotated[Optional[int], typer.Option("--seed", help="Random seed (frame i uses seed + i).")] = None,
+        no_mcap: Annotated[bool, typer.Option("--no-mcap", help="Do not write planes.mcap.")] = False,
+        no_npz: Annotated[bool, typer.Option("--no-npz", help="Do not write planes/NNNNNN.npz.")] = False,
+        config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
+        info_topic: O.InfoTopicOpt = None,
+    ) -> None:
+        """Plane filtering (FSPF+ or FSPF) of every depth frame: stats.csv (thesis Table 5.2), planes, figures."""
+        sets = list(set_ or [])
+        if method is not None:
+            if method not in ("fspf+", "fspf"):
+                raise KosmapError(f"--method {method} is not fspf+ or fspf")
+            sets.append(f'fspf.method="{method}"')
+        if seed is not None:
+            sets.append(f"fspf.seed={seed}")
+        cfg = O.make_config(config, sets, depth_topic, info_topic)
+        s = run_planes(source, out, cfg, camera_file=camera, depth_scale=depth_scale, save_depth=save_depth,
+                       figures=figures, every=every, limit=max_frames, mcap=not no_mcap, npz=not no_npz)
+        print(f"{s['frames']} frames, {s['method']} ({s['backend']}): median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
+              f"per frame; ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
+              f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, {s['planes']:.1f} planes per frame")
+        for w in s["warnings"]:
+            print(f"warning: {w}")
+        print(f"wrote {out}/stats.csv, config.toml, summary.json" + ("" if no_npz else ", planes/")
+              + ("" if no_mcap else ", planes.mcap") + (", depth/" if save_depth else "") + (", figures/" if figures else ""))
