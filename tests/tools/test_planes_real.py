@@ -1,0 +1,64 @@
+"""FSPF+ and FSPF on the real depth frames of ../shared/data/depth: every dataset decodes and runs; the
+labelled mOSD table plane is found as one plane."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from frontend.camera import DepthConfig, depth_constraints
+from frontend.fspf import FspfConfig, filter_planes, fspf_plus
+from tools.datasets import DATASETS, iter_dataset, iter_samples
+
+pytestmark = pytest.mark.data
+
+# decoded depth ranges from SOURCES.md (metres, of the valid pixels)
+RANGES = {"tum_fr1_xyz": (0.3, 3.8), "slambook2_ch5_rgbd": (0.2, 9.9), "cape_tunnel_frame": (0.2, 7.0),
+          "pcl_mosd_plane_gt": (0.3, 2.0)}
+
+
+def test_every_dataset_decodes_and_runs(data_dir):
+    seen = set()
+    wide = DepthConfig(max_depth=10.0)
+    for s in iter_samples(data_dir / "depth", limit=2, every=97):
+        seen.add(s.dataset)
+        d = s.depth
+        assert d.shape == (480, 640) and d.dtype == np.float32
+        v = d[d > 0]
+        assert 0.4 < v.size / d.size <= 1.0
+        lo, hi = RANGES.get(s.dataset, (0.2, 10.0))
+        assert lo <= np.median(v) <= hi and v.max() <= 10.0, (s.dataset, s.name)
+        for method in ("fspf+", "fspf"):
+            p = filter_planes(d, s.camera, FspfConfig(method=method, drop_classes=[]), wide, seed=0)
+            st = p.stats
+            assert st.ineligible + st.inliers + st.dropped + st.outliers + st.remaining == d.size
+            assert len(p) >= 1 and st.inliers > (500 if method == "fspf" else 0.3 * st.eligible), (s.dataset, s.name)
+    assert seen == set(DATASETS)
+
+
+def test_sun_and_nyu_decoding(data_dir):
+    s = {x.name: x for x in iter_dataset(data_dir / "depth" / "open3d_rgbd_formats")}
+    sun = s["SUN"].depth
+    assert 2.4 < np.median(sun[sun > 0]) < 3.0 and sun.max() == pytest.approx(9.87, abs=0.01)
+    nyu = s["NYU"].depth
+    assert nyu[nyu > 0].min() == pytest.approx(1.39, abs=0.02) and nyu.max() == pytest.approx(6.69, abs=0.02)
+    assert 0.05 < (nyu == 0).mean() < 0.1  # 2047 = invalid, about 7 %
+
+
+def test_mosd_table_is_one_plane(data_dir):
+    samples = list(iter_dataset(data_dir / "depth" / "pcl_mosd_plane_gt"))
+    assert len(samples) >= 2
+    for s in samples:
+        assert s.camera.fx == pytest.approx(525.0, abs=0.5)  # fitted from the organised cloud
+        table = (s.labels >= 1) & (s.labels <= 9)
+        assert table.sum() > 100000
+        assert depth_constraints(s.depth, 0.5, 4.5)[table].mean() > 0.99
+        cfg = FspfConfig(drop_classes=[], analysed_fraction=0.99)
+        p = fspf_plus(s.depth, s.camera, cfg, seed=0)
+        lab = p.label_image()
+        overlap = np.bincount(lab[table], minlength=len(p) + 1)[1:]
+        k = int(overlap.argmax())
+        recall, precision = overlap[k] / table.sum(), overlap[k] / p.counts[k]
+        assert recall >= 0.95 and precision >= 0.98, (s.name, recall, precision)
+        again = fspf_plus(s.depth, s.camera, cfg, seed=0)
+        assert np.array_equal(again.pixels, p.pixels) and np.array_equal(again.normals, p.normals)
