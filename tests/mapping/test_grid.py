@@ -134,3 +134,17 @@ def test_bad_probability_config_is_rejected():
         GridConfig(p_hit=0.4)
     with pytest.raises(ConfigError, match="resolution"):
         GridConfig(resolution=0.0)
+
+
+def test_numba_and_numpy_engines_give_the_same_map():
+    rng = np.random.default_rng(3)
+    poses = POSES + np.column_stack((rng.uniform(-0.2, 0.2, (len(POSES), 2)), np.zeros(len(POSES))))
+    scans = [scan_at(p, WORLD, max_range=6.0, noise=0.01, rng=rng) for p in poses]
+    maps = []
+    for engine in ("numba", "numpy"):
+        b = GridBuilder(GridConfig(resolution=0.05, no_return_clear=3.0), engine=engine)
+        for p, s in zip(poses, scans):
+            b.add(p, s)
+        maps.append(b.to_occupancy())
+    assert maps[0].origin == maps[1].origin and maps[0].data.shape == maps[1].data.shape
+    assert np.mean(maps[0].data == maps[1].data) > 0.9995
