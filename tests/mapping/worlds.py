@@ -90,3 +90,49 @@ def wall_grid(segs: np.ndarray, resolution: float, margin: float = 0.5, transfor
         data = cv2.dilate((data > 0).astype(np.uint8), np.ones((cells_thick, cells_thick), np.uint8)).astype(np.int8) * 100
     ox, oy = co * lo[0] - so * lo[1], so * lo[0] + co * lo[1]
     return OccupancyGrid(data, resolution, (float(ox), float(oy), float(origin_yaw)))
+
+
+def thick_walls(segs: np.ndarray, thickness: float) -> np.ndarray:
+    """Each wall centre line as the outline of a `thickness`-wide rectangle (segments a ray caster sees)."""
+    out = []
+    for x0, y0, x1, y1 in segs:
+        d = np.array([x1 - x0, y1 - y0]) / np.hypot(x1 - x0, y1 - y0)
+        n = np.array([-d[1], d[0]]) * thickness / 2
+        a, b = np.array([x0, y0]) - d * thickness / 2, np.array([x1, y1]) + d * thickness / 2
+        c = [a + n, b + n, b - n, a - n, a + n]
+        out += [(*p, *q) for p, q in zip(c[:-1], c[1:])]
+    return np.array(out)
+
+
+def thick_blueprint(segs: np.ndarray, thickness: float, resolution: float, margin: float = 0.5) -> OccupancyGrid:
+    """The plan of walls `thickness` wide: cells whose centre is within thickness/2 (+ half a cell, so thin walls
+    stay continuous) of a centre line are walls; the outside (reached from the border) unknown, the inside free."""
+    from mapping.mapio import outside_unknown
+
+    lo = np.floor((segs.reshape(-1, 2).min(axis=0) - margin) / resolution) * resolution
+    hi = segs.reshape(-1, 2).max(axis=0) + margin
+    w, h = np.ceil((hi - lo) / resolution).astype(int)
+    xs = lo[0] + (np.arange(w) + 0.5) * resolution
+    ys = lo[1] + (np.arange(h) + 0.5) * resolution
+    X, Y = np.meshgrid(xs, ys)
+    P = np.column_stack((X.ravel(), Y.ravel()))
+    dmin = np.full(len(P), np.inf)
+    for x0, y0, x1, y1 in segs:
+        a, b = np.array([x0, y0]), np.array([x1, y1])
+        t = np.clip((P - a) @ (b - a) / ((b - a) @ (b - a)), 0, 1)
+        dmin = np.minimum(dmin, np.hypot(*(P - a - t[:, None] * (b - a)).T))
+    data = np.where(dmin.reshape(h, w) <= thickness / 2 + resolution / 2, 100, 0).astype(np.int8)
+    return OccupancyGrid(outside_unknown(data), resolution, (float(lo[0]), float(lo[1]), 0.0))
+
+
+def path_poses(waypoints, step: float) -> np.ndarray:
+    """Poses every `step` metres along a polyline, heading along it (x, y, yaw)."""
+    wp = np.asarray(waypoints, float)
+    out = []
+    for a, b in zip(wp[:-1], wp[1:]):
+        n = max(1, int(np.ceil(np.hypot(*(b - a)) / step)))
+        yaw = np.arctan2(*(b - a)[::-1])
+        for t in np.arange(n) / n:
+            out.append((*(a + t * (b - a)), yaw))
+    out.append((*wp[-1], out[-1][2]))
+    return np.array(out)
