@@ -175,14 +175,22 @@ def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0
     return OccupancyGrid(np.ascontiguousarray(data[::-1]), float(scale), (0.0, 0.0, 0.0))
 
 
+PICTURE_UNKNOWN = 160  # grey of unknown (and undecided) cells in pictures for people
+
+
 def grid_picture(grid: OccupancyGrid, trajectory: np.ndarray | None = None,
-                 color: tuple[int, int, int] = (200, 80, 0)) -> np.ndarray:
-    """BGR picture for people: white free, black occupied, grey unknown; row 0 = top; optional trajectory
+                 color: tuple[int, int, int] = (200, 80, 0), graded: bool = False) -> np.ndarray:
+    """BGR picture for people, row 0 = top: white free (occupancy < 50), black occupied (≥ 65), grey unknown
+    or undecided; `graded` shows known cells' probability as a grey level instead. Optional trajectory
     (N×2 or N×3 map coordinates) drawn as a line."""
     d = grid.data.astype(np.int16)
-    g = np.full(d.shape, 128, np.uint8)
+    g = np.full(d.shape, PICTURE_UNKNOWN, np.uint8)
     known = d >= 0
-    g[known] = (255 - np.clip(d[known], 0, 100) * 255 // 100).astype(np.uint8)
+    if graded:
+        g[known] = (255 - np.clip(d[known], 0, 100) * 255 // 100).astype(np.uint8)
+    else:
+        g[known & (d < 50)] = 255
+        g[d >= round(100 * OCCUPIED_THRESH)] = 0
     img = cv2.cvtColor(np.ascontiguousarray(g[::-1]), cv2.COLOR_GRAY2BGR)
     if trajectory is not None and len(trajectory) >= 1:
         draw_trajectory(img, grid, np.asarray(trajectory, float)[:, :2], color)

@@ -127,10 +127,12 @@ def test_bad_map_files_give_one_clear_line(tmp_path, content, match):
 
 
 def test_png_picture_and_trajectory(tmp_path):
-    g = OccupancyGrid(np.array([[-1, 0], [50, 100]], np.int8), 1.0, (10.0, 20.0, 0.0))
+    g = OccupancyGrid(np.array([[-1, 0, 40], [50, 100, 70]], np.int8), 1.0, (10.0, 20.0, 0.0))
     img = grid_picture(g)
-    assert img[1, 0].tolist() == [128] * 3 and img[1, 1].tolist() == [255] * 3  # bottom row: unknown, free
-    assert img[0, 1].tolist() == [0] * 3 and img[0, 0].tolist() == [128] * 3  # top row: occupied, 50 %
+    assert img[1, :, 0].tolist() == [160, 255, 255]  # bottom row: unknown, free, likely free
+    assert img[0, :, 0].tolist() == [160, 0, 0]  # top row: undecided, occupied, occupied
+    img = grid_picture(g, graded=True)
+    assert img[1, :, 0].tolist() == [160, 255, 153] and img[0, :, 0].tolist() == [128, 0, 77]
     big = OccupancyGrid(np.zeros((100, 100), np.int8), 0.1, (-5.0, -5.0, 0.0))
     traj = np.array([[-4.0, 0.05], [4.0, 0.05]])  # a horizontal line through the map's middle
     pic = grid_picture(big, trajectory=traj, color=(255, 0, 0))
