@@ -307,6 +307,30 @@ class GridBuilder:
         return OccupancyGrid(data, self.res, ((self.c0 + c0) * self.res, (self.r0 + r0) * self.res, 0.0))
 
 
+class GridSet:
+    """One streaming grid per scan source (each KOS level, the obstacle scan, the laser), made on first use.
+
+    `add(key, pose, scan)` with key = the source's name (default: the scan's topic); `mounts[key]` is that
+    sensor's mount in base_link (x, y, yaw), identity when absent.
+    """
+
+    def __init__(self, config: GridConfig | None = None, mounts: dict | None = None, engine: str = "numba") -> None:
+        self.config = config or GridConfig()
+        self.mounts = dict(mounts or {})
+        self.engine = engine
+        self.builders: dict[str, GridBuilder] = {}
+
+    def add(self, pose, scan, key: str | None = None, mount=None) -> None:
+        key = key or scan.topic or scan.frame_id or "scan"
+        b = self.builders.get(key)
+        if b is None:
+            b = self.builders[key] = GridBuilder(self.config, self.mounts.get(key, (0.0, 0.0, 0.0)), self.engine)
+        b.add(pose, scan, mount)
+
+    def to_occupancy(self) -> dict[str, OccupancyGrid]:
+        return {k: b.to_occupancy() for k, b in self.builders.items()}
+
+
 def build_grid(poses: np.ndarray, scans, mount=(0.0, 0.0, 0.0), config: GridConfig | None = None) -> OccupancyGrid:
     """One grid from N×3 poses (x, y, yaw of base_link in the map) and their N scans (an iterable is streamed)."""
     b = GridBuilder(config, mount)

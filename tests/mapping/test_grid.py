@@ -148,3 +148,22 @@ def test_numba_and_numpy_engines_give_the_same_map():
         maps.append(b.to_occupancy())
     assert maps[0].origin == maps[1].origin and maps[0].data.shape == maps[1].data.shape
     assert np.mean(maps[0].data == maps[1].data) > 0.9995
+
+
+def test_grid_set_keeps_one_grid_per_source():
+    from dataclasses import replace
+
+    from mapping.grid import GridSet
+
+    gs = GridSet(GridConfig(resolution=0.1), mounts={"/kos/level1": (0.3, 0.0, np.pi)})
+    base = (4.0, 2.0, 0.5)
+    sensor = (4.0 + 0.3 * np.cos(0.5), 2.0 + 0.3 * np.sin(0.5), 0.5 + np.pi)
+    laser = replace(scan_at(base, WORLD), topic="/scan")
+    kos = replace(scan_at(sensor, WORLD, n=512, fov=np.radians(70.6), max_range=4.5), topic="/kos/level1")
+    gs.add(base, laser)
+    gs.add(base, kos)
+    grids = gs.to_occupancy()
+    assert set(grids) == {"/scan", "/kos/level1"}
+    direct = build_grid([sensor], [kos], config=GridConfig(resolution=0.1))
+    assert np.array_equal(grids["/kos/level1"].data, direct.data)
+    assert (grids["/scan"].data >= 0).sum() > 3 * (direct.data >= 0).sum()
