@@ -8,7 +8,14 @@ A (the map under test) is aligned to B (the reference: another map or a blueprin
   2. trimmed point-to-point ICP (Besl & McKay 1992; closed-form 2D Kabsch step) from the best few
      candidates, with a shrinking correspondence distance, on the occupied cell centres at full resolution.
 Metrics are then computed on one canvas (B's frame, the finer of the two resolutions) onto which both
-maps are resampled, so maps of different resolutions and sizes compare cell area for cell area.
+maps are resampled, so maps of different resolutions and sizes compare cell area for cell area:
+  - wall cells: occupancy ≥ occupied_thresh and (walls = "surface") free space among the 8 neighbours;
+  - precision(tol): fraction of A's wall cells with a B wall cell within tol (centre to centre); recall(tol):
+    the same from B to A; F1 their harmonic mean;
+  - coverage(tol): fraction of B's wall cells within tol of any cell A observed (free or occupied);
+  - distances A→B and B→A: mean and median distance from each wall cell to the other map's nearest one;
+  - free space, over the cells both maps decide (free: occupancy < free_thresh, or a wall): agreement of
+    the labels, IoU of the free cells, and the fraction of A's free cells that lie on B's walls.
 """
 
 from __future__ import annotations
@@ -111,8 +118,11 @@ class Alignment:
         return se2(self.x, self.y, self.yaw)
 
     def as_dict(self) -> dict:
+        def num(v: float) -> float | None:  # JSON has no NaN
+            return float(v) if np.isfinite(v) else None
+
         return {"aligned": self.aligned, "x": self.x, "y": self.y, "yaw_deg": float(np.degrees(self.yaw)),
-                "inliers": self.inliers, "rms": self.rms, "coarse_score": self.coarse_score, "ms": self.ms}
+                "inliers": num(self.inliers), "rms": num(self.rms), "coarse_score": num(self.coarse_score), "ms": self.ms}
 
 
 def _kabsch(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -64,7 +64,9 @@ def test_no_align_flag(capsys, tmp_path, maps):
     a, b, _, _ = maps
     code, stdout, err = run(capsys, "compare", a, b, "--no-align", "--out", tmp_path / "na")
     assert code == 0, err
-    m = json.loads((tmp_path / "na" / "compare.json").read_text())
+    text = (tmp_path / "na" / "compare.json").read_text()
+    assert "NaN" not in text  # strict JSON
+    m = json.loads(text)
     assert m["alignment"]["aligned"] is False and m["tolerances"]["0.20"]["f1"] < 0.3
     assert "--no-align" in stdout
 
