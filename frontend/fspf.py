@@ -29,7 +29,8 @@ from numba import njit
 
 from frontend.camera import DepthConfig, camera_axes, depth_constraints
 from frontend.params import StageConfig, param
-from frontend.planes import PLANE_CLASSES, FrameStats, Planes, classify, fit_plane, merge_planes, ransac_plane, rectify
+from frontend.planes import (PLANE_CLASSES, FrameStats, Planes, classify, fit_plane, merge_planes, moments_from_sums,
+                             ransac_plane, rectify)
 from frontend.records import CameraModel, Transform
 
 __all__ = ["FspfConfig", "PLANE_CLASSES", "filter_planes", "fspf_plus", "fspf", "frame_seed", "warmup"]
@@ -167,19 +168,16 @@ def _refit_nb(wx, wy, wz, act, n):
 
 
 @njit(cache=True)
-def _inlier_fit_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps):
-    """Least-squares refit on the inliers of (n, d) among act[:na], in one pass over the moments.
+def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
+    """Least-squares refit on the inliers of (n, d) among the first na points, in one pass over the moments.
 
-    Moments are taken about the first point so that Σppᵀ/n − c·cᵀ stays accurate in float64.
-    Returns (count, nx, ny, nz, d).
+    Moments are taken about the first point so that Σppᵀ/n − c·cᵀ stays accurate. Returns (count, n, d).
     """
-    q0 = act[0]
-    ox, oy, oz = wx[q0], wy[q0], wz[q0]
+    ox, oy, oz = np.float64(wx[0]), np.float64(wy[0]), np.float64(wz[0])
     cnt = 0
     sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
     for a in range(na):
-        q = act[a]
-        x, y, z = wx[q], wy[q], wz[q]
+        x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
         if abs(nx * x + ny * y + nz * z + d) < eps:
             x -= ox
             y -= oy
@@ -210,40 +208,30 @@ def _inlier_fit_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps):
 
 
 @njit(cache=True)
-def _partition_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps):
-    """Reorder act[:na] so the inliers (|n·p + d| < ε) come first; return their count."""
-    k = 0
-    for a in range(na):
-        q = act[a]
-        if abs(nx * wx[q] + ny * wy[q] + nz * wz[q] + d) < eps:
-            act[a] = act[k]
-            act[k] = q
-            k += 1
-    return k
-
-
-@njit(cache=True)
-def _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub):
-    """RANSAC (thesis Alg. 5): 3-point hypotheses scored on ≤ subset random points, adaptive stop (β)."""
+def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
+    """RANSAC (thesis Alg. 5) over the first na points: 3-point hypotheses scored on ≤ subset random
+    points (copied to sx, sy, sz), adaptive stop k = (1 + β·√(1 − w³)) / w³."""
     if na <= subset:
         ns = na
         for s in range(na):
-            sub[s] = act[s]
+            sx[s], sy[s], sz[s] = wx[s], wy[s], wz[s]
     else:
         ns = subset
         for s in range(subset):
-            sub[s] = act[_randint(state, na)]
+            q = _randint(state, na)
+            sx[s], sy[s], sz[s] = wx[q], wy[q], wz[q]
     best = -1
     bx = by = bz = bd = 0.0
     need = float(max_iter)
     it = 0
     while it < need and it < max_iter:
         it += 1
-        a = act[_randint(state, na)]
-        b = act[_randint(state, na)]
-        c = act[_randint(state, na)]
-        ux, uy, uz = wx[b] - wx[a], wy[b] - wy[a], wz[b] - wz[a]
-        vx, vy, vz = wx[c] - wx[a], wy[c] - wy[a], wz[c] - wz[a]
+        a = _randint(state, na)
+        b = _randint(state, na)
+        c = _randint(state, na)
+        ax, ay, az = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+        ux, uy, uz = wx[b] - ax, wy[b] - ay, wz[b] - az
+        vx, vy, vz = wx[c] - ax, wy[c] - ay, wz[c] - az
         nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         nn = np.sqrt(nx * nx + ny * ny + nz * nz)
         if nn < 1e-12:
@@ -251,11 +239,11 @@ def _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub):
         nx /= nn
         ny /= nn
         nz /= nn
-        d = -(nx * wx[a] + ny * wy[a] + nz * wz[a])
+        d = -(nx * ax + ny * ay + nz * az)
         cnt = 0
-        for s in range(ns):
-            q = sub[s]
-            if abs(nx * wx[q] + ny * wy[q] + nz * wz[q] + d) < eps:
+        fx32, fy32, fz32, fd32, fe32 = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d), np.float32(eps)
+        for s in range(ns):  # float32 so the scoring loop vectorises twice as wide
+            if abs(fx32 * sx[s] + fy32 * sy[s] + fz32 * sz[s] + fd32) < fe32:
                 cnt += 1
         if cnt > best:
             best = cnt
@@ -271,7 +259,7 @@ def _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub):
 @njit(cache=True)
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
                   per_window, up, fwd, left, sl_min, sl_max, drop, state,
-                  out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
+                  out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
     H, W = depth.shape
     npx = H * W
     flat = depth.ravel()
@@ -287,13 +275,20 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
     n_elig = m
     remaining = n_elig
     stop = (1.0 - frac) * n_elig
+    tx = np.empty(W, np.float32)  # x = z·(c − cx)/fx, y = z·(r − cy)/fy
+    ty = np.empty(H, np.float32)
+    for c in range(W):
+        tx[c] = (c - cx) / fx
+    for r in range(H):
+        ty[r] = (r - cy) / fy
     wr = np.empty(npx, np.int32)
     wc = np.empty(npx, np.int32)
-    wx = np.empty(npx, np.float64)
-    wy = np.empty(npx, np.float64)
-    wz = np.empty(npx, np.float64)
-    act = np.empty(npx, np.int32)
-    sub = np.empty(subset, np.int32)
+    wx = np.empty(npx, np.float32)
+    wy = np.empty(npx, np.float32)
+    wz = np.empty(npx, np.float32)
+    sx = np.empty(subset, np.float32)
+    sy = np.empty(subset, np.float32)
+    sz = np.empty(subset, np.float32)
     n_out = 0
     n_pl = 0
     n_drop = 0
@@ -313,7 +308,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
         # p1, p2: eligible pixels within Ω of p0
         found = 0
         j1 = -1
-        zs = flat[i0]
+        zs = np.float64(flat[i0])
         for _ in range(40):
             r = r0 + _randint(state, 2 * omega + 1) - omega
             c = c0 + _randint(state, 2 * omega + 1) - omega
@@ -332,6 +327,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             remaining -= 1
             n_outl += 1
             continue
+        # the window: the world size Δ at the mean depth, W = fx·Δ/z̄, H = fy·Δ/z̄, clipped at the border
         zbar = zs / 3.0
         hw = int(0.5 * fx * delta / zbar + 0.5)
         hh = int(0.5 * fy * delta / zbar + 0.5)
@@ -342,61 +338,110 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
         k = 0
         for r in range(r_lo, r_hi + 1):
             base = r * W
+            yr = ty[r]
             for c in range(c_lo, c_hi + 1):
                 j = base + c
                 if st[j] == 1:
                     st[j] = 2
-                    z = np.float64(flat[j])
+                    z = flat[j]
                     wr[k] = r
                     wc[k] = c
-                    wx[k] = (c - cx) * z / fx
-                    wy[k] = (r - cy) * z / fy
+                    wx[k] = z * tx[c]
+                    wy[k] = z * yr
                     wz[k] = z
                     k += 1
         remaining -= k
         if k <= n_min:
             n_outl += k
             continue
-        for a in range(k):
-            act[a] = a
         na = k
         for _pw in range(per_window):
             if na <= n_min:
                 break
-            ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, act, na, eps, beta, subset, max_iter, state, sub)
+            ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz)
             if not ok:
                 break
-            n_in, nx, ny, nz, d = _inlier_fit_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps)
-            if n_in <= n_min:
-                break
-            n_in = _partition_nb(wx, wy, wz, act, na, nx, ny, nz, d, eps)
-            if n_in <= n_min:
+            # least-squares refit on the subset's inliers (≤ subset points); the final plane is refitted
+            # below from the moments of all its inliers
+            cnt, nx, ny, nz, d = _inlier_fit_nb(sx, sy, sz, min(na, subset), nx, ny, nz, d, eps)
+            if cnt < 3:
                 break
             if d < 0:  # rectify: the normal faces the camera
                 nx, ny, nz, d = -nx, -ny, -nz, -d
             cls = _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max)
-            if drop[cls]:
+            dropped = drop[cls]
+            # one pass: inliers of the refitted plane go out, the rest are compacted to the front
+            keep = 0
+            n_in = 0
+            start = n_out
+            m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = 0.0
+            for a in range(na):
+                x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+                if abs(nx * x + ny * y + nz * z + d) < eps:
+                    n_in += 1
+                    if not dropped:
+                        out_pix[n_out, 0] = wr[a]
+                        out_pix[n_out, 1] = wc[a]
+                        out_pts[n_out, 0] = wx[a]
+                        out_pts[n_out, 1] = wy[a]
+                        out_pts[n_out, 2] = wz[a]
+                        out_plane[n_out] = n_pl
+                        n_out += 1
+                        m0 += x
+                        m1 += y
+                        m2 += z
+                        m3 += x * x
+                        m4 += x * y
+                        m5 += x * z
+                        m6 += y * y
+                        m7 += y * z
+                        m8 += z * z
+                else:
+                    wr[keep] = wr[a]
+                    wc[keep] = wc[a]
+                    wx[keep] = wx[a]
+                    wy[keep] = wy[a]
+                    wz[keep] = wz[a]
+                    keep += 1
+            na = keep
+            if n_in <= n_min:  # too few inliers (thesis: nMin): they are outliers
+                n_out = start
+                n_outl += n_in
+                break
+            if dropped:
                 n_drop += n_in
-            else:
-                for a in range(n_in):
-                    q = act[a]
-                    out_pix[n_out, 0] = wr[q]
-                    out_pix[n_out, 1] = wc[q]
-                    out_pts[n_out, 0] = wx[q]
-                    out_pts[n_out, 1] = wy[q]
-                    out_pts[n_out, 2] = wz[q]
-                    out_plane[n_out] = n_pl
-                    n_out += 1
-                pl_n[n_pl, 0] = nx
-                pl_n[n_pl, 1] = ny
-                pl_n[n_pl, 2] = nz
-                pl_d[n_pl] = d
-                pl_cls[n_pl] = cls
-                pl_cnt[n_pl] = n_in
-                n_pl += 1
-            for a in range(n_in, na):
-                act[a - n_in] = act[a]
-            na -= n_in
+                continue
+            # the plane refitted from all its inliers' moments, rectified again
+            inv = 1.0 / n_in
+            mx, my, mz = m0 * inv, m1 * inv, m2 * inv
+            C = np.empty((3, 3))
+            C[0, 0] = m3 * inv - mx * mx
+            C[0, 1] = C[1, 0] = m4 * inv - mx * my
+            C[0, 2] = C[2, 0] = m5 * inv - mx * mz
+            C[1, 1] = m6 * inv - my * my
+            C[1, 2] = C[2, 1] = m7 * inv - my * mz
+            C[2, 2] = m8 * inv - mz * mz
+            _, v = np.linalg.eigh(C)
+            fx_, fy_, fz_ = v[0, 0], v[1, 0], v[2, 0]
+            fd = -(fx_ * mx + fy_ * my + fz_ * mz)
+            if fd < 0:
+                fx_, fy_, fz_, fd = -fx_, -fy_, -fz_, -fd
+            pl_n[n_pl, 0] = fx_
+            pl_n[n_pl, 1] = fy_
+            pl_n[n_pl, 2] = fz_
+            pl_d[n_pl] = fd
+            pl_cls[n_pl] = cls
+            pl_cnt[n_pl] = n_in
+            pl_mom[n_pl, 0] = m0
+            pl_mom[n_pl, 1] = m1
+            pl_mom[n_pl, 2] = m2
+            pl_mom[n_pl, 3] = m3
+            pl_mom[n_pl, 4] = m4
+            pl_mom[n_pl, 5] = m5
+            pl_mom[n_pl, 6] = m6
+            pl_mom[n_pl, 7] = m7
+            pl_mom[n_pl, 8] = m8
+            n_pl += 1
         n_outl += na
     stats[0] = npx
     stats[1] = npx - n_elig
@@ -718,11 +763,11 @@ def _prepare(depth_m, cam: CameraModel):
     return depth
 
 
-def _finish(planes: Planes, cfg: FspfConfig, axes, t0: float) -> Planes:
+def _finish(planes: Planes, cfg: FspfConfig, axes, t0: float, moments=None) -> Planes:
     if cfg.merge and len(planes) > 1:
         drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
         planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, *axes, cfg.slanted_min_deg,
-                              cfg.slanted_max_deg, drop)
+                              cfg.slanted_max_deg, drop, moments)
     planes.stats.planes = len(planes)
     planes.stats.elapsed_ms = (time.perf_counter() - t0) * 1e3
     return planes
@@ -755,15 +800,18 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     out_plane = np.empty(n_cap, np.int32)
     pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
     pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
+    pl_mom = np.empty((p_cap, 9))
     stats = np.zeros(8, np.int64)
     n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
                          cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
                          cfg.ransac_max_iter, cfg.planes_per_window, *axes, cfg.slanted_min_deg, cfg.slanted_max_deg,
-                         _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats)
+                         _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
+                         pl_mom, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats[:6])), (H, W), "fspf+")
     planes.stats.windows, planes.stats.visited = int(stats[6]), int(stats[7])
-    return _finish(planes, cfg, axes, t0)
+    s1, s2 = moments_from_sums(pl_mom[:p])
+    return _finish(planes, cfg, axes, t0, (planes.counts.astype(np.float64), s1, s2))
 
 
 def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,

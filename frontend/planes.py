@@ -223,6 +223,16 @@ def classify(normals: np.ndarray, up: np.ndarray, forward: np.ndarray, left: np.
 # ---- merging ---------------------------------------------------------------------------------------------------------
 
 @njit(cache=True)
+def moments_from_sums(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(Σp P×3, Σppᵀ P×3×3) from P×9 rows (Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz)."""
+    s = np.ascontiguousarray(m[:, :3])
+    ss = np.empty((len(m), 3, 3))
+    for (a, b), k in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(3, 9)):
+        ss[:, a, b] = ss[:, b, a] = m[:, k]
+    return s, ss
+
+
+@njit(cache=True)
 def _moments_nb(points, plane, P):
     """Per-plane count, Σp and Σppᵀ in one pass (float64)."""
     cnt = np.zeros(P)
@@ -304,29 +314,31 @@ def _merge_nb(normals, offsets, cnt, s, ss, cos_max, offset_m):
 
 def merge_planes(planes: Planes, angle_deg: float, offset_m: float, up: np.ndarray, forward: np.ndarray,
                  left: np.ndarray, slanted_min_deg: float = 5.0, slanted_max_deg: float = 80.0,
-                 drop_classes: tuple[int, ...] = ()) -> Planes:
+                 drop_classes: tuple[int, ...] = (), moments: tuple | None = None) -> Planes:
     """Merge coplanar patches (thesis future work; Biswas's polygon merging): one refitted plane each.
 
     Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg
     and where each one's centroid lies within offset_m of the other's plane; the merged plane is refitted by
     least squares from the accumulated moments (Σp, Σppᵀ), rectified and reclassified. Planes whose new
-    class is in drop_classes are dropped.
+    class is in drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the
+    points when the caller has them.
     """
     P = len(planes)
     if P <= 1:
         return planes
-    cnt, s, ss = _moments_nb(planes.points, planes.plane, P)
+    cnt, s, ss = moments if moments is not None else _moments_nb(planes.points, planes.plane, P)
     group, normals, offsets = _merge_nb(np.ascontiguousarray(planes.normals, dtype=np.float64),
-                                        np.ascontiguousarray(planes.offsets, dtype=np.float64), cnt, s, ss,
+                                        np.ascontiguousarray(planes.offsets, dtype=np.float64),
+                                        np.asarray(cnt, np.float64), s, ss,
                                         float(np.cos(np.radians(angle_deg))), float(offset_m))
     G = len(offsets)
     if G == P:
         return planes
     classes = classify(normals, up, forward, left, slanted_min_deg, slanted_max_deg)
-    new_plane = group[planes.plane].astype(np.int32)
-    merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes,
-                    np.bincount(new_plane, minlength=G).astype(np.int64), replace(planes.stats), planes.shape,
-                    planes.method)
+    new_plane = group.astype(np.int32)[planes.plane]
+    counts = np.bincount(group, weights=planes.counts, minlength=G).astype(np.int64)
+    merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes, counts,
+                    replace(planes.stats), planes.shape, planes.method)
     if drop_classes:
         keep = ~np.isin(classes, drop_classes)
         if not keep.all():
