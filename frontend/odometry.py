@@ -1,21 +1,358 @@
-"""Scan-matching odometry: scans (KOS or laser) registered against a local submap, fused with wheel odometry."""
+"""Scan-matching odometry: scans (KOS or laser) registered against a local submap, fused with wheel odometry.
+
+Two front ends with one interface, `update(stamp_ns, points, odom_pose) -> FrontendResult`, so both can be
+measured on every log (tools/bench_slam.py):
+
+- `SubmapOdometry` (the default, written here by hand): each scan is matched against a likelihood field of
+  the recent keyframes (Cartographer's two overlapping local submaps, Hess et al. 2016 §IV), starting from
+  the wheel-odometry prediction: a small correlative search, then Gauss–Newton coarse to fine with a prior
+  towards the prediction. kiss-icp diverges on the sparse 180° benchmark lasers and on narrow depth
+  scans (STACK.md); this matcher reached Cartographer's accuracy on Intel. For a narrow depth scan the prior
+  can be made much stronger along the direction of travel (a corridor gives no along-track fix), and the
+  correlative search switched off (`search_linear = 0`), as STACK.md's corridor probe needed.
+- `KissIcpOdometry`: kiss-icp on the points lifted to z = 0, the wheel-odometry increment given as its
+  motion guess (`last_delta`, STACK.md), kept as the measured baseline.
+
+Points are in base_link (N×2); poses (x, y, yaw) are in the front end's own drift-prone frame.
+"""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import bisect
+import math
+from dataclasses import dataclass, field
 
+import numpy as np
+
+from frontend import se2
 from frontend.params import StageConfig, param
 
 
 @dataclass
 class OdometryConfig(StageConfig):
-    """[odometry]: the scan-matching front end and its keyframes."""
+    """[odometry]: the scan-matching front end and its keyframes. Defaults: one set for every benchmark log."""
 
     section = "odometry"
     matcher: str = param("submap", choices=("submap", "kiss-icp"), doc="scan-to-submap matcher or kiss-icp")
-    keyframe_distance: float = param(0.1, lo=0.0, doc="new keyframe after this travel", unit="m")
-    keyframe_angle_deg: float = param(5.0, lo=0.0, doc="new keyframe after this rotation", unit="deg")
+    keyframe_distance: float = param(0.1, lo=0.0, doc="insert a scan into the local submap after this travel", unit="m")
+    keyframe_angle_deg: float = param(5.0, lo=0.0, doc="… or after this rotation", unit="deg")
     voxel_size: float = param(0.1, lo=0.0, lo_open=True, doc="kiss-icp voxel size", unit="m")
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(30.0, lo=0.0, lo_open=True, doc="ignore returns farther than this", unit="m")
     use_wheel_odometry: bool = param(True, doc="use the log's wheel odometry as the motion prior")
+    resolution: float = param(0.05, lo=0.0, lo_open=True, doc="likelihood field cell size", unit="m")
+    submap_size: float = param(30.0, lo=1.0, doc="side of a local submap's square field", unit="m")
+    submap_keyframes: int = param(20, lo=1, doc="a new local submap starts every this many keyframes; each holds twice as many")
+    sigma_coarse: float = param(0.10, lo=0.0, lo_open=True, doc="field blur for the search and the first Gauss–Newton", unit="m")
+    sigma_fine: float = param(0.02, lo=0.0, lo_open=True, doc="field blur for the final Gauss–Newton", unit="m")
+    search_linear: float = param(0.1, lo=0.0, doc="correlative search half window in x and y (0 = no search)", unit="m")
+    search_linear_step: float = param(0.05, lo=0.0, lo_open=True, doc="correlative search step", unit="m")
+    search_angular_deg: float = param(3.0, lo=0.0, doc="correlative search half window in yaw", unit="deg")
+    search_angular_step_deg: float = param(1.0, lo=0.0, lo_open=True, doc="correlative search yaw step", unit="deg")
+    search_no_odom_linear: float = param(0.3, lo=0.0, doc="search half window when there is no wheel odometry", unit="m")
+    search_no_odom_angular_deg: float = param(12.0, lo=0.0, doc="yaw half window without wheel odometry", unit="deg")
+    prior_weight: float = param(1.0, lo=0.0, doc="Gauss–Newton pull towards the predicted position", unit="1/m²")
+    prior_weight_along: float = param(1.0, lo=0.0, doc="… along the direction of travel (≥1000 for a narrow depth scan)", unit="1/m²")
+    prior_weight_yaw: float = param(1.0, lo=0.0, doc="… towards the predicted yaw", unit="1/rad²")
+    gn_iterations: int = param(20, lo=1, doc="Gauss–Newton iterations per level")
+    min_points: int = param(10, lo=1, doc="scans with fewer returns are not matched (pose from the prediction)")
+    recovery_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="a match scoring below this × the running mean is retried with the wide search")
+    recovery_linear: float = param(1.0, lo=0.0, doc="recovery search half window in x and y", unit="m")
+    recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
+    point_voxel: float = param(0.0, lo=0.0, doc="keep one point per cell of this size before matching (0 = all)", unit="m")
+
+
+@dataclass
+class FrontendResult:
+    """What the front end says about one scan."""
+
+    pose: np.ndarray  # (3,) x, y, yaw in the front end's frame
+    keyframe: bool  # the scan was inserted into the local submap
+    matched: bool  # False when the scan had too few points (or no map yet): pose is the prediction
+    score: float = float("nan")  # mean fine-field value at the scan's points after matching
+    info: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # Gauss–Newton information of the match
+
+
+class WheelOdometry:
+    """Wheel odometry samples, interpolated at scan times (x, y and unwrapped yaw, linearly)."""
+
+    def __init__(self) -> None:
+        self.t: list[int] = []
+        self.p: list[tuple[float, float, float]] = []
+        self._unwrapped = 0.0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def add(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
+        if self.t and stamp_ns <= self.t[-1]:
+            if stamp_ns == self.t[-1]:
+                return
+            # out-of-order sample: keep the buffer sorted
+            i = bisect.bisect_left(self.t, stamp_ns)
+            if i < len(self.t) and self.t[i] == stamp_ns:
+                return
+            prev = self.p[i - 1][2] if i else yaw
+            self.t.insert(i, stamp_ns)
+            self.p.insert(i, (x, y, prev + float(se2.wrap(yaw - prev))))
+            return
+        if self.p:
+            yaw = self.p[-1][2] + float(se2.wrap(yaw - self.p[-1][2]))
+        self.t.append(stamp_ns)
+        self.p.append((float(x), float(y), float(yaw)))
+
+    def covers(self, stamp_ns: int) -> bool:
+        """True when a sample at or after the stamp exists (interpolation needs no more data)."""
+        return bool(self.t) and self.t[-1] >= stamp_ns
+
+    def pose_at(self, stamp_ns: int) -> np.ndarray | None:
+        """Interpolated pose; held at the first/last sample outside their span; None without samples."""
+        if not self.t:
+            return None
+        i = bisect.bisect_left(self.t, stamp_ns)
+        if i == 0:
+            p = np.array(self.p[0])
+        elif i >= len(self.t):
+            p = np.array(self.p[-1])
+        else:
+            t0, t1 = self.t[i - 1], self.t[i]
+            a = (stamp_ns - t0) / (t1 - t0)
+            p = (1.0 - a) * np.array(self.p[i - 1]) + a * np.array(self.p[i])
+        p[2] = float(se2.wrap(p[2]))
+        return p
+
+    def drop_before(self, stamp_ns: int) -> None:
+        """Forget samples older than the one just before `stamp_ns` (memory stays flat on long logs)."""
+        i = bisect.bisect_left(self.t, stamp_ns) - 1
+        if i > 0:
+            del self.t[:i]
+            del self.p[:i]
+
+
+def voxel_filter(points: np.ndarray, size: float) -> np.ndarray:
+    """One point (the first) per square cell of `size` metres, in scan order."""
+    if size <= 0 or len(points) == 0:
+        return points
+    keys = np.floor(points / size).astype(np.int64)
+    _, idx = np.unique(keys[:, 0] * 1_000_003 + keys[:, 1], return_index=True)
+    return points[np.sort(idx)]
+
+
+def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: float) -> np.ndarray:
+    """W = w_along·uuᵀ + w_across·(I − uuᵀ) in x, y (u the heading), w_yaw on yaw."""
+    u = np.array([math.cos(yaw), math.sin(yaw)])
+    W = np.zeros((3, 3))
+    W[:2, :2] = w_along * np.outer(u, u) + w_across * (np.eye(2) - np.outer(u, u))
+    W[2, 2] = w_yaw
+    return W
+
+
+class _LocalSubmap:
+    """A local submap: a coarse and a fine likelihood field around where it started, and its keyframe count."""
+
+    def __init__(self, center, cfg: OdometryConfig) -> None:
+        from frontend.likelihood import LikelihoodField
+
+        self.coarse = LikelihoodField.around(center, cfg.submap_size, cfg.resolution, cfg.sigma_coarse)
+        self.fine = LikelihoodField.around(center, cfg.submap_size, cfg.resolution, cfg.sigma_fine)
+        self.count = 0
+
+    def insert(self, pts_world: np.ndarray) -> None:
+        self.coarse.insert(pts_world)
+        self.fine.insert(pts_world)
+        self.count += 1
+
+
+class SubmapOdometry:
+    """Scan-to-submap matching with a wheel-odometry prior (see the module docstring)."""
+
+    def __init__(self, cfg: OdometryConfig | None = None) -> None:
+        self.cfg = cfg or OdometryConfig()
+        self.submaps: list[_LocalSubmap] = []
+        self.pose: np.ndarray | None = None
+        self.prev_odom: np.ndarray | None = None
+        self.velocity = np.zeros(3)  # last increment, for a constant-velocity guess without odometry
+        self.last_key: np.ndarray | None = None
+        self.score_ema = 0.0  # running mean of the fine match score, for failure detection
+        self.recoveries = 0
+
+    def _predict(self, odom_pose: np.ndarray | None) -> tuple[np.ndarray, bool]:
+        if odom_pose is not None and self.prev_odom is not None:
+            return se2.compose(self.pose, se2.between(self.prev_odom, odom_pose)), True
+        return se2.compose(self.pose, self.velocity), False
+
+    def _insert(self, pose: np.ndarray, pts: np.ndarray) -> None:
+        cfg = self.cfg
+        if not self.submaps or self.submaps[-1].count >= cfg.submap_keyframes:
+            self.submaps.append(_LocalSubmap(pose[:2], cfg))
+        world = se2.transform_points(pose, pts)
+        for sm in self.submaps:
+            sm.insert(world)
+        if self.submaps[0].count >= 2 * cfg.submap_keyframes and len(self.submaps) > 1:
+            self.submaps.pop(0)
+        self.last_key = pose.copy()
+
+    def _is_keyframe(self, pose: np.ndarray) -> bool:
+        if self.last_key is None:
+            return True
+        d = se2.between(self.last_key, pose)
+        return bool(math.hypot(d[0], d[1]) >= self.cfg.keyframe_distance
+                    or abs(d[2]) >= math.radians(self.cfg.keyframe_angle_deg))
+
+    def _match(self, pts: np.ndarray, pred: np.ndarray, has_odom: bool) -> tuple[np.ndarray, float, np.ndarray]:
+        """Correlative search around the prediction, then Gauss–Newton on the coarse and the fine field."""
+        from frontend.matcher import correlative_search, gauss_newton
+
+        cfg = self.cfg
+        sm = self.submaps[0]
+        c = sm.coarse
+        pts64 = np.ascontiguousarray(pts, dtype=np.float64)
+        lin = cfg.search_linear if has_odom else cfg.search_no_odom_linear
+        ang = math.radians(cfg.search_angular_deg if has_odom else cfg.search_no_odom_angular_deg)
+        start = pred
+        if lin > 0 or ang > 0:
+            start, _ = correlative_search(c.values, c.origin[0], c.origin[1], c.resolution, pts64, pred, lin,
+                                          cfg.search_linear_step, ang, math.radians(cfg.search_angular_step_deg), 0.0, 0.0)
+        # the prior pulls towards the odometry prediction; without odometry towards the search's answer
+        prior = pred if has_odom else start
+        W = prior_weight_matrix(prior[2], cfg.prior_weight, cfg.prior_weight_along if has_odom else cfg.prior_weight,
+                                cfg.prior_weight_yaw)
+        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, prior, W, cfg.gn_iterations)
+        f = sm.fine
+        pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior, W,
+                                         cfg.gn_iterations)
+        return np.asarray(pose, dtype=float), float(score), info
+
+    def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """Branch-and-bound search over ±recovery_linear, ±recovery_angular_deg, then Gauss–Newton."""
+        from frontend.matcher import SearchGrids, gauss_newton
+
+        cfg = self.cfg
+        sm = self.submaps[0]
+        grids = SearchGrids(sm.coarse, depth=4)
+        pts64 = np.ascontiguousarray(pts, dtype=np.float64)
+        start, _ = grids.search(pts64, pred, cfg.recovery_linear, math.radians(cfg.recovery_angular_deg), 0.0)
+        if start is None:
+            return pred, 0.0, np.zeros((3, 3))
+        W = prior_weight_matrix(start[2], cfg.prior_weight, cfg.prior_weight, cfg.prior_weight_yaw)
+        c, f = sm.coarse, sm.fine
+        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, start, W, cfg.gn_iterations)
+        pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, start, W,
+                                         cfg.gn_iterations)
+        return np.asarray(pose, dtype=float), float(score), info
+
+    def update(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None) -> FrontendResult:
+        cfg = self.cfg
+        if not cfg.use_wheel_odometry:
+            odom_pose = None
+        pts = voxel_filter(points, cfg.point_voxel)
+        if self.pose is None:
+            self.pose = np.zeros(3)
+            self.prev_odom = odom_pose
+            if len(pts) >= cfg.min_points:
+                self._insert(self.pose, pts)
+            return FrontendResult(self.pose.copy(), len(pts) >= cfg.min_points, False)
+        pred, has_odom = self._predict(odom_pose)
+        if len(pts) < cfg.min_points or not self.submaps:
+            pose, matched, score, info = pred, False, float("nan"), np.zeros((3, 3))
+        else:
+            pose, score, info = self._match(pts, pred, has_odom)
+            matched = True
+            if score < cfg.recovery_ratio * self.score_ema:
+                # A poor match: the prediction may be wrong (stale odometry that then jumps, as in MIT CSAIL;
+                # scans out of order or a wheel slip, as in Intel). Search the submap exhaustively over a wide
+                # window (branch and bound) around the prediction; keep the answer if it matches better.
+                p2, s2, i2 = self._recover(pts, pred)
+                if s2 > score:
+                    pose, score, info = p2, s2, i2
+                self.recoveries += 1
+            self.score_ema += 0.1 * (score - self.score_ema) if self.score_ema > 0 else score
+        pose = np.asarray(pose, dtype=float)
+        self.velocity = se2.between(self.pose, pose)
+        self.pose = pose
+        if odom_pose is not None:
+            self.prev_odom = odom_pose
+        key = len(pts) >= cfg.min_points and self._is_keyframe(pose)
+        if key:
+            self._insert(pose, pts)
+        return FrontendResult(pose.copy(), key, matched, float(score), info)
+
+
+class KissIcpOdometry:
+    """kiss-icp on scan points lifted to z = 0 (deskew off), the wheel-odometry increment as its guess."""
+
+    def __init__(self, cfg: OdometryConfig | None = None) -> None:
+        from kiss_icp.config import load_config
+        from kiss_icp.kiss_icp import KissICP
+
+        self.cfg = cfg or OdometryConfig()
+        kc = load_config(None)
+        kc.data.max_range = self.cfg.max_range
+        kc.data.min_range = self.cfg.min_range
+        kc.data.deskew = False
+        kc.mapping.voxel_size = self.cfg.voxel_size  # always set: load_config derives it once from max_range
+        self.kiss = KissICP(kc)
+        self.prev_odom: np.ndarray | None = None
+        self.last_key: np.ndarray | None = None
+
+    def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
+        """Branch-and-bound search over ±recovery_linear, ±recovery_angular_deg, then Gauss–Newton."""
+        from frontend.matcher import SearchGrids, gauss_newton
+
+        cfg = self.cfg
+        sm = self.submaps[0]
+        grids = SearchGrids(sm.coarse, depth=4)
+        pts64 = np.ascontiguousarray(pts, dtype=np.float64)
+        start, _ = grids.search(pts64, pred, cfg.recovery_linear, math.radians(cfg.recovery_angular_deg), 0.0)
+        if start is None:
+            return pred, 0.0, np.zeros((3, 3))
+        W = prior_weight_matrix(start[2], cfg.prior_weight, cfg.prior_weight, cfg.prior_weight_yaw)
+        c, f = sm.coarse, sm.fine
+        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, start, W, cfg.gn_iterations)
+        pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, start, W,
+                                         cfg.gn_iterations)
+        return np.asarray(pose, dtype=float), float(score), info
+
+    def update(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None) -> FrontendResult:
+        if not self.cfg.use_wheel_odometry:
+            odom_pose = None
+        if odom_pose is not None and self.prev_odom is not None:
+            d = se2.between(self.prev_odom, odom_pose)
+            m = np.eye(4)
+            m[:2, :2] = [[math.cos(d[2]), -math.sin(d[2])], [math.sin(d[2]), math.cos(d[2])]]
+            m[:2, 3] = d[:2]
+            self.kiss.last_delta = m  # not an official API: the motion guess kiss-icp composes with its last pose
+        if odom_pose is not None:
+            self.prev_odom = odom_pose
+        matched = len(points) >= self.cfg.min_points
+        if matched:
+            p3 = np.zeros((len(points), 3))
+            p3[:, :2] = points
+            self.kiss.register_frame(p3, np.empty(0))
+        else:
+            self.kiss.last_pose = self.kiss.last_pose @ self.kiss.last_delta
+        m = self.kiss.last_pose
+        pose = np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
+        key = self.last_key is None or bool(
+            math.hypot(*se2.between(self.last_key, pose)[:2]) >= self.cfg.keyframe_distance
+            or abs(se2.between(self.last_key, pose)[2]) >= math.radians(self.cfg.keyframe_angle_deg))
+        if key:
+            self.last_key = pose.copy()
+        return FrontendResult(pose, key, matched)
+
+
+def make_odometry(cfg: OdometryConfig | None = None):
+    """The front end the config names."""
+    cfg = cfg or OdometryConfig()
+    return KissIcpOdometry(cfg) if cfg.matcher == "kiss-icp" else SubmapOdometry(cfg)
+
+
+def scan_points_base(ranges: np.ndarray, angles: np.ndarray, valid: np.ndarray, mount: np.ndarray | None,
+                     min_range: float, max_range: float) -> np.ndarray:
+    """End points (N×2, base_link) of the valid beams within [min_range, max_range]; `mount` = laser pose in base_link."""
+    r = ranges.astype(np.float64)
+    ok = valid & (r >= min_range) & (r <= max_range)
+    pts = np.column_stack((r[ok] * np.cos(angles[ok]), r[ok] * np.sin(angles[ok])))
+    if mount is not None and np.any(mount != 0):
+        pts = se2.transform_points(mount, pts)
+    return pts

@@ -1,0 +1,54 @@
+"""Keyframes: the scans that become pose-graph nodes, chosen by distance and angle travelled in the front end.
+
+Every other scan is attached to the latest keyframe at or before it, by its front-end pose relative to that
+keyframe, so that each scan gets an optimised pose: x_scan = x_key ⊕ (ℓ_key⁻¹ ⊕ ℓ_scan), ℓ the front-end poses.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from frontend import se2
+
+
+@dataclass
+class Keyframe:
+    """A graph node: the scan, its front-end pose and the wheel odometry there (when the log has it)."""
+
+    id: int  # node id in the graph (0, 1, 2, …)
+    scan_index: int  # index of the scan in the run
+    stamp_ns: int
+    local_pose: np.ndarray  # (3,) front-end pose
+    points: np.ndarray  # N×2 scan end points in base_link
+    odom_pose: np.ndarray | None = None  # (3,) wheel odometry
+    score: float = float("nan")  # front-end match score
+
+
+class KeyframeSelector:
+    """Makes a scan a keyframe after `distance` metres or `angle` radians of front-end motion (or the first one)."""
+
+    def __init__(self, distance: float, angle: float, min_points: int = 10) -> None:
+        self.distance = distance
+        self.angle = angle
+        self.min_points = min_points
+        self.last: np.ndarray | None = None
+
+    def __call__(self, local_pose: np.ndarray, n_points: int) -> bool:
+        if n_points < self.min_points:
+            return False
+        if self.last is not None:
+            d = se2.between(self.last, local_pose)
+            if math.hypot(d[0], d[1]) < self.distance and abs(d[2]) < self.angle:
+                return False
+        self.last = np.array(local_pose, dtype=float)
+        return True
+
+
+def scan_poses(local_poses: np.ndarray, key_of_scan: np.ndarray, key_local: np.ndarray, key_opt: np.ndarray) -> np.ndarray:
+    """Optimised pose of every scan from its keyframe's: x_key ⊕ (ℓ_key⁻¹ ⊕ ℓ_scan) (arrays over scans)."""
+    k = np.asarray(key_of_scan)
+    rel = se2.between(key_local[k], local_poses)
+    return se2.compose(key_opt[k], rel)

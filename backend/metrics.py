@@ -1,0 +1,183 @@
+"""Trajectory error: the Kümmerle et al. relations metric, and ATE / RPE against a ground truth (evo's definitions).
+
+Relations (Kümmerle et al., "On measuring the accuracy of SLAM algorithms", Auton. Robots 2009): each line
+`t1 t2 x y z roll pitch yaw` is the reference δ*_ij = x_t1⁻¹ ⊕ x_t2 between two scans. The error of a
+relation is ε = δ*⁻¹ ⊕ δ with δ = x̂_t1⁻¹ ⊕ x̂_t2 the estimate; its translational error is ‖trans(ε)‖
+(= ‖t − t*‖, both translations in the frame of x_t1) and its rotational error |wrap(θ − θ*)|. Reported, as
+Hess et al. 2016 Table II: the absolute and the squared translational error (m, m²) and the absolute and
+squared rotational error (deg, deg²), each as mean ± std (population std, ddof 0) over all relations.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from frontend import se2
+from frontend.errors import KosmapError
+
+
+class MetricsError(KosmapError):
+    """A reference file that cannot be read or matched to the trajectory."""
+
+
+def read_relations(path: str | Path) -> np.ndarray:
+    """Relations as an M×5 array (t1, t2, x, y, yaw); t in seconds as in the file."""
+    p = Path(path)
+    if not p.is_file():
+        raise MetricsError(f"relations file {p} does not exist; give a Kümmerle .relations file")
+    rows = []
+    for lineno, line in enumerate(p.read_text().splitlines(), 1):
+        f = line.split()
+        if not f or f[0].startswith("#"):
+            continue
+        if len(f) < 8:
+            raise MetricsError(f"{p}:{lineno}: expected `t1 t2 x y z roll pitch yaw`, got {len(f)} fields")
+        try:
+            rows.append((float(f[0]), float(f[1]), float(f[2]), float(f[3]), float(f[7])))
+        except ValueError as e:
+            raise MetricsError(f"{p}:{lineno}: not a number ({e})") from e
+    if not rows:
+        raise MetricsError(f"{p} holds no relations")
+    return np.array(rows)
+
+
+def _lookup(stamps: np.ndarray, t: np.ndarray, tol: float) -> np.ndarray:
+    """Index of the nearest stamp to each t, −1 where none is within tol seconds."""
+    i = np.clip(np.searchsorted(stamps, t), 1, len(stamps) - 1)
+    left = stamps[i - 1]
+    right = stamps[i]
+    j = np.where(np.abs(t - left) <= np.abs(right - t), i - 1, i)
+    return np.where(np.abs(stamps[j] - t) <= tol, j, -1)
+
+
+def relation_errors(stamps, poses, relations: np.ndarray, tol: float = 1e-3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(translational errors m, rotational errors rad, mask of relations found) for poses at scan stamps (s)."""
+    stamps = np.asarray(stamps, dtype=float)
+    poses = np.asarray(poses, dtype=float)
+    order = np.argsort(stamps)
+    stamps, poses = stamps[order], poses[order]
+    if len(stamps) < 2:
+        raise MetricsError("the trajectory has fewer than two poses; nothing to score")
+    i1 = _lookup(stamps, relations[:, 0], tol)
+    i2 = _lookup(stamps, relations[:, 1], tol)
+    ok = (i1 >= 0) & (i2 >= 0)
+    est = se2.between(poses[i1[ok]], poses[i2[ok]])
+    ref = relations[ok][:, 2:5]
+    et = np.hypot(est[:, 0] - ref[:, 0], est[:, 1] - ref[:, 1])
+    er = np.abs(se2.wrap(est[:, 2] - ref[:, 2]))
+    return et, er, ok
+
+
+def _ms(v: np.ndarray) -> dict:
+    return {"mean": float(np.mean(v)) if len(v) else float("nan"), "std": float(np.std(v)) if len(v) else float("nan")}
+
+
+def relations_metric(stamps, poses, relations: np.ndarray | str | Path, tol: float = 1e-3,
+                     max_missing: float = 0.01) -> dict:
+    """The four numbers of Hess et al. Table II (mean and std each) plus counts.
+
+    Raises MetricsError when more than `max_missing` of the relations name scans the trajectory lacks
+    (a relations file of another log, or stamps in another clock).
+    """
+    rel = read_relations(relations) if isinstance(relations, (str, Path)) else np.asarray(relations, dtype=float)
+    et, er, ok = relation_errors(stamps, poses, rel, tol)
+    missing = int((~ok).sum())
+    if missing > max_missing * len(rel):
+        raise MetricsError(f"{missing} of {len(rel)} relations name scan times not in the trajectory (tolerance {tol} s); "
+                           f"is the relations file for this log?")
+    deg = np.degrees(er)
+    return {"n": int(ok.sum()), "missing": missing,
+            "abs_trans": _ms(et), "sq_trans": _ms(et ** 2), "abs_rot_deg": _ms(deg), "sq_rot_deg2": _ms(deg ** 2),
+            "max_trans": float(et.max()) if len(et) else float("nan")}
+
+
+def relations_metric_split(stamps, poses, relations: np.ndarray, split_s: float = 30.0, tol: float = 1e-3) -> dict:
+    """The metric on relations shorter and longer than `split_s` seconds (local accuracy vs loops)."""
+    dt = relations[:, 1] - relations[:, 0]
+    out = {}
+    for name, sel in (("short", np.abs(dt) < split_s), ("long", np.abs(dt) >= split_s)):
+        if sel.any():
+            out[name] = relations_metric(stamps, poses, relations[sel], tol, max_missing=1.0)
+    return out
+
+
+# ---- ATE / RPE against a ground-truth trajectory (TUM), as evo computes them -------------------------------------
+
+def associate(t_est: np.ndarray, t_ref: np.ndarray, max_diff: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (est, ref) of nearest stamps within max_diff seconds (evo's `associate_trajectories`)."""
+    t_est = np.asarray(t_est, dtype=float)
+    t_ref = np.asarray(t_ref, dtype=float)
+    if len(t_ref) == 0 or len(t_est) == 0:
+        return np.zeros(0, int), np.zeros(0, int)
+    order = np.argsort(t_ref)
+    j = _lookup(t_ref[order], t_est, max_diff)
+    ie = np.flatnonzero(j >= 0)
+    return ie, order[j[ie]]
+
+
+def align_se2(est_xy: np.ndarray, ref_xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rotation R (2×2) and translation t minimising Σ‖R·est + t − ref‖² (Umeyama without scale)."""
+    me, mr = est_xy.mean(axis=0), ref_xy.mean(axis=0)
+    C = (ref_xy - mr).T @ (est_xy - me) / len(est_xy)
+    U, _, Vt = np.linalg.svd(C)
+    S = np.eye(2)
+    if np.linalg.det(U) * np.linalg.det(Vt) < 0:
+        S[1, 1] = -1
+    R = U @ S @ Vt
+    return R, mr - R @ me
+
+
+def ate(t_est, est, t_ref, ref, align: bool = True, max_diff: float = 0.01) -> dict:
+    """Absolute trajectory error of positions after SE(2) alignment: rmse, mean, median, std, max (m)."""
+    ie, ir = associate(t_est, t_ref, max_diff)
+    if len(ie) < 2:
+        raise MetricsError(f"only {len(ie)} poses match the ground truth in time (within {max_diff} s); "
+                           f"are both in the same clock?")
+    e = np.asarray(est, dtype=float)[ie, :2]
+    r = np.asarray(ref, dtype=float)[ir, :2]
+    if align:
+        R, t = align_se2(e, r)
+        e = e @ R.T + t
+    d = np.hypot(*(e - r).T)
+    return {"n": int(len(d)), "rmse": float(np.sqrt(np.mean(d ** 2))), "mean": float(d.mean()),
+            "median": float(np.median(d)), "std": float(d.std()), "max": float(d.max())}
+
+
+def rpe(t_est, est, t_ref, ref, delta: int = 1, max_diff: float = 0.01) -> dict:
+    """Relative pose error over `delta` associated poses: translation (m) and rotation (deg) rmse / mean / max."""
+    ie, ir = associate(t_est, t_ref, max_diff)
+    if len(ie) <= delta:
+        raise MetricsError(f"only {len(ie)} poses match the ground truth in time; RPE needs more than {delta}")
+    e = np.asarray(est, dtype=float)[ie]
+    r = np.asarray(ref, dtype=float)[ir]
+    de = se2.between(e[:-delta], e[delta:])
+    dr = se2.between(r[:-delta], r[delta:])
+    err = se2.between(dr, de)
+    t = np.hypot(err[:, 0], err[:, 1])
+    a = np.degrees(np.abs(err[:, 2]))
+    return {"n": int(len(t)), "delta": delta,
+            "trans_rmse": float(np.sqrt(np.mean(t ** 2))), "trans_mean": float(t.mean()), "trans_max": float(t.max()),
+            "rot_rmse_deg": float(np.sqrt(np.mean(a ** 2))), "rot_mean_deg": float(a.mean()), "rot_max_deg": float(a.max())}
+
+
+def loop_precision(loops, t_ref, ref, trans_tol: float = 0.2, rot_tol_deg: float = 3.0, max_diff: float = 0.05) -> dict:
+    """Share of accepted loop constraints that agree with the ground truth.
+
+    `loops`: iterable of (t_a, t_b, measured relative pose a⁻¹⊕b). A loop is correct when its measurement
+    differs from the ground truth's relative pose by less than trans_tol metres and rot_tol_deg degrees.
+    """
+    t_ref = np.asarray(t_ref, dtype=float)
+    order = np.argsort(t_ref)
+    ts, rs = t_ref[order], np.asarray(ref, dtype=float)[order]
+    good = checked = 0
+    for ta, tb, meas in loops:
+        ia, ib = _lookup(ts, np.array([ta, tb]), max_diff)
+        if ia < 0 or ib < 0:
+            continue
+        err = se2.between(se2.between(rs[ia], rs[ib]), meas)
+        checked += 1
+        good += bool(math.hypot(err[0], err[1]) < trans_tol and abs(math.degrees(err[2])) < rot_tol_deg)
+    return {"checked": checked, "correct": good, "precision": good / checked if checked else float("nan")}

@@ -1,0 +1,262 @@
+"""SLAM over a log: scans and wheel odometry in one pass → front end → keyframes → loops → pose graph.
+
+`Slam` takes a Scan stream (laser today; KOS virtual scans later: a Scan stream is a Scan stream) one scan
+at a time with the wheel odometry interpolated at its stamp; `run_slam` reads a log and feeds it. Every
+scan gets an optimised pose through its keyframe (backend/keyframes.py).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from backend.graph import GraphConfig, PoseGraph
+from backend.keyframes import Keyframe, KeyframeSelector, scan_poses
+from backend.loops import LoopCloser, LoopConstraint
+from frontend import se2
+from frontend.errors import KosmapError, TopicError
+from frontend.odometry import OdometryConfig, WheelOdometry, make_odometry, scan_points_base
+from frontend.records import Odometry, Scan, Transforms
+
+ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
+ODOM_STALE_S = 0.5  # scans farther than this outside the odometry's span get no odometry prior
+
+
+@dataclass
+class SlamResult:
+    """Poses of every scan (base_link in the map frame), the keyframes, the graph and where the time went."""
+
+    stamps_ns: np.ndarray  # (S,) scan stamps
+    poses: np.ndarray  # (S, 3) optimised
+    local_poses: np.ndarray  # (S, 3) front end only
+    odom_poses: np.ndarray  # (S, 3) wheel odometry at each scan (NaN where none)
+    matched: np.ndarray  # (S,) bool: the scan was matched (not only predicted)
+    key_of_scan: np.ndarray  # (S,) keyframe each scan hangs from
+    keyframes: list[Keyframe]
+    graph: PoseGraph
+    loops: list[LoopConstraint]
+    timings: dict
+    mount: np.ndarray = field(default_factory=lambda: np.zeros(3))  # sensor pose in base_link (x, y, yaw)
+    points: list[np.ndarray] | None = None  # per-scan end points (base_link, float32) when kept
+    duration_s: float = 0.0  # log time spanned by the scans
+    warnings: list[str] = field(default_factory=list)
+    recoveries: int = 0
+    loop_stats: dict = field(default_factory=dict)
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return self.stamps_ns * 1e-9
+
+    def sensor_poses(self) -> np.ndarray:
+        """Poses of the scan's own frame (base_link ⊕ mount): what the benchmark relations relate."""
+        return se2.compose(self.poses, np.repeat(self.mount[None], len(self.poses), 0))
+
+    @property
+    def realtime_factor(self) -> float:
+        t = self.timings.get("total", 0.0)
+        return self.duration_s / t if t > 0 else float("inf")
+
+
+class Slam:
+    """Online core: `add_scan` per scan, `finish` for the batch solve and per-scan poses."""
+
+    def __init__(self, odometry: OdometryConfig | None = None, graph: GraphConfig | None = None,
+                 keep_points: bool = False) -> None:
+        self.ocfg = odometry or OdometryConfig()
+        self.gcfg = graph or GraphConfig()
+        self.frontend = make_odometry(self.ocfg)
+        self.graph = PoseGraph(self.gcfg)
+        self.loops = LoopCloser(self.gcfg)
+        self.select = KeyframeSelector(self.gcfg.node_distance, np.radians(self.gcfg.node_angle_deg), self.ocfg.min_points)
+        self.keyframes: list[Keyframe] = []
+        self.stamps: list[int] = []
+        self.local: list[np.ndarray] = []
+        self.odom: list[np.ndarray] = []
+        self.matched: list[bool] = []
+        self.key_of_scan: list[int] = []
+        self.points: list[np.ndarray] | None = [] if keep_points else None
+        self.t = {"frontend": 0.0, "graph": 0.0, "loops": 0.0}
+        self.found: list[LoopConstraint] = []
+        self.since_update = 0  # nodes added since the last ISAM2 update
+        self.since_loop = 0  # loops added since the last ISAM2 update
+
+    def add_scan(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None = None) -> None:
+        """One scan: points (N×2, base_link), the wheel odometry at its stamp (or None)."""
+        t0 = time.perf_counter()
+        res = self.frontend.update(stamp_ns, points, odom_pose)
+        t1 = time.perf_counter()
+        self.t["frontend"] += t1 - t0
+        i = len(self.stamps)
+        self.stamps.append(int(stamp_ns))
+        self.local.append(res.pose)
+        self.odom.append(np.full(3, np.nan) if odom_pose is None else np.asarray(odom_pose, dtype=float))
+        self.matched.append(res.matched)
+        if self.points is not None:
+            self.points.append(np.asarray(points, dtype=np.float32))
+        if self.select(res.pose, len(points)):
+            self._add_keyframe(Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
+                                        None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score))
+        self.key_of_scan.append(max(len(self.keyframes) - 1, 0))
+
+    def _add_keyframe(self, kf: Keyframe) -> None:
+        g = self.graph
+        t0 = time.perf_counter()
+        if kf.id == 0:
+            g.add_node(np.zeros(3))
+        else:
+            prev = self.keyframes[-1]
+            rel = se2.between(prev.local_pose, kf.local_pose)
+            g.add_node(se2.compose(g.est[prev.id], rel))
+            g.add_match(prev.id, kf.id, rel)
+            if self.gcfg.odometry_factors and kf.odom_pose is not None and prev.odom_pose is not None:
+                g.add_odometry(prev.id, kf.id, se2.between(prev.odom_pose, kf.odom_pose))
+        self.keyframes.append(kf)
+        t1 = time.perf_counter()
+        self.t["graph"] += t1 - t0
+        if self.gcfg.loop_closure:
+            self.loops.add_node(kf, g)
+            if kf.id % self.gcfg.loop_search_every == 0:
+                # candidates are chosen, and searched, around the current estimate: the last solved pose
+                # composed with the front end's motion since (ISAM2 runs every `optimize_every` nodes)
+                for lc in self.loops.search(kf.id, g):
+                    g.add_loop(lc.a, lc.b, lc.rel, lc.score)
+                    self.found.append(lc)
+                    self.since_loop += 1
+        t2 = time.perf_counter()
+        self.t["loops"] += t2 - t1
+        self.since_update += 1
+        if self.since_update >= self.gcfg.optimize_every:
+            g.update(full=self.since_loop > 0)
+            self.since_update = self.since_loop = 0
+        self.t["graph"] += time.perf_counter() - t2
+
+    def finish(self) -> SlamResult:
+        """Batch solve, then a pose for every scan through its keyframe."""
+        if not self.keyframes:
+            raise KosmapError(f"none of the {len(self.stamps)} scans had {self.ocfg.min_points} or more returns; "
+                              f"nothing to map (check the scan topic and [odometry] min_range/max_range)")
+        t0 = time.perf_counter()
+        self.graph.optimize()
+        self.t["optimize"] = time.perf_counter() - t0
+        self.loops.release()
+        key_local = np.array([k.local_pose for k in self.keyframes])
+        local = np.array(self.local)
+        kos = np.array(self.key_of_scan)
+        poses = scan_poses(local, kos, key_local, self.graph.est)
+        return SlamResult(np.array(self.stamps, dtype=np.int64), poses, local, np.array(self.odom),
+                          np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
+                          points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
+                          loop_stats=dataclasses.asdict(self.loops.stats))
+
+
+def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) -> np.ndarray | None:
+    """Planar pose of `frame` in `base` from static transforms (child → (parent, x y yaw)); None if unlinked."""
+    pose = np.zeros(3)
+    f = frame.lstrip("/")
+    for _ in range(32):
+        if f == base:
+            return pose
+        if f not in statics:
+            return None
+        parent, p = statics[f]
+        pose = se2.compose(p, pose)
+        f = parent
+    return None
+
+
+def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callable[[float, float], None] | None = None,
+             keep_points: bool = False, max_seconds: float | None = None) -> SlamResult:
+    """Read a log in one pass and run SLAM on its laser scans with its wheel odometry.
+
+    `cfg` is a mapping.config.Config (defaults when None); `progress(done_s, total_s)` is called as log time
+    advances; `max_seconds` stops after that much log time (for slices). `source="kos"` (virtual scans from
+    the depth camera) is not available yet.
+    """
+    from frontend.logs import detect_topics, open_log
+    from mapping.config import Config
+
+    cfg = cfg or Config()
+    if source == "kos":
+        raise KosmapError("--source kos is not available yet: it needs the KOS stage (frontend/kos.py); use --source laser")
+    if source != "laser":
+        raise KosmapError(f"unknown source '{source}'; use laser or kos")
+    t_start = time.perf_counter()
+    ocfg: OdometryConfig = cfg.odometry
+    slam = Slam(ocfg, cfg.graph, keep_points=keep_points)
+    warnings: list[str] = []
+    with open_log(path) as log:
+        info = log.info()
+        det = detect_topics(info.types(), cfg.topics)
+        if not det.scan:
+            raise TopicError(f"{Path(path).name} has no sensor_msgs/LaserScan topic; --source laser needs one (see `kosmap info`)")
+        use_odom = bool(det.odom) and ocfg.use_wheel_odometry
+        topics = [det.scan] + ([det.odom] if use_odom else []) + ([det.tf_static] if det.tf_static else [])
+        wheel = WheelOdometry()
+        pending: deque[Scan] = deque()
+        statics: dict[str, tuple[str, np.ndarray]] = {}
+        mounts: dict[str, np.ndarray] = {}
+        base = "base_link"
+        t_first = None
+        total = info.duration
+        state = {"empty": 0, "no_odom": 0}
+
+        def process(scan: Scan) -> None:
+            frame = scan.frame_id.lstrip("/") or base
+            if frame not in mounts:
+                m = _mount(statics, base, frame)
+                if m is None:
+                    m = np.zeros(3)
+                    if frame != base:
+                        warnings.append(f"no static transform from {base} to {frame}; the scan is taken as mounted at {base}")
+                mounts[frame] = m
+            pts = scan_points_base(scan.ranges, scan.angles, scan.valid(), mounts[frame], ocfg.min_range, ocfg.max_range)
+            if len(pts) < ocfg.min_points:
+                state["empty"] += 1
+            odom = None
+            if use_odom and len(wheel) and wheel.t[0] - ODOM_STALE_S * 1e9 <= scan.stamp_ns <= wheel.t[-1] + ODOM_STALE_S * 1e9:
+                odom = wheel.pose_at(scan.stamp_ns)
+            elif use_odom:
+                state["no_odom"] += 1
+            slam.add_scan(scan.stamp_ns, pts, odom)
+            wheel.drop_before(scan.stamp_ns - int(2e9))
+
+        for rec in log.read(topics):
+            if isinstance(rec, Odometry):
+                base = rec.child_frame_id.lstrip("/") or base
+                wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
+                while pending and wheel.covers(pending[0].stamp_ns):
+                    process(pending.popleft())
+            elif isinstance(rec, Transforms):
+                for tf in rec.transforms:
+                    statics[tf.child] = (tf.parent, np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]]))
+            elif isinstance(rec, Scan):
+                if t_first is None:
+                    t_first = rec.stamp_ns
+                if max_seconds is not None and (rec.stamp_ns - t_first) * 1e-9 > max_seconds:
+                    break
+                pending.append(rec)
+                while pending and (not use_odom or wheel.covers(pending[0].stamp_ns)
+                                   or (rec.stamp_ns - pending[0].stamp_ns) * 1e-9 > ODOM_WAIT_S):
+                    process(pending.popleft())
+                if progress is not None:
+                    progress((rec.stamp_ns - t_first) * 1e-9, total)
+        while pending:
+            process(pending.popleft())
+        warnings.extend(log.warnings)
+    result = slam.finish()
+    result.timings["total"] = time.perf_counter() - t_start
+    result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
+    result.mount = next(iter(mounts.values())) if mounts else np.zeros(3)
+    result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
+    if state["empty"]:
+        warnings.append(f"{state['empty']} scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
+    if state["no_odom"]:
+        warnings.append(f"{state['no_odom']} scan(s) lay outside the wheel odometry's time span: matched without it")
+    result.warnings = warnings
+    return result
