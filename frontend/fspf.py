@@ -59,8 +59,11 @@ class FspfConfig(StageConfig):
     fspf_window_px: int = param(60, lo=2, doc="FSPF: d1, d2 are drawn within ±window/2 of d0 (η)", unit="px")
     fspf_error_m: float = param(0.03, lo=0.0, lo_open=True, doc="FSPF: plane inlier distance (ε)", unit="m")
     fspf_min_inlier_fraction: float = param(0.8, lo=0.0, hi=1.0, lo_open=True, doc="FSPF: accept at this inlier fraction (α_in)")
-    slanted_min_deg: float = param(5.0, lo=0.0, hi=90.0, doc="tilted less than this from level: ground or ceiling", unit="deg")
+    slanted_min_deg: float = param(3.0, lo=0.0, hi=90.0, doc="tilted less than this from level: ground or ceiling "
+                                   "(a 1:12 ramp is 4.8°)", unit="deg")
     slanted_max_deg: float = param(80.0, lo=0.0, hi=90.0, doc="tilted more than this: a wall; between: slanted", unit="deg")
+    ground_max_height: float = param(0.15, doc="an up-facing level plane higher than this above the floor (from the "
+                                     "mount) is 'raised' (a table top), not ground", unit="m")
     merge: bool = param(True, doc="merge coplanar patches into one refitted plane")
     merge_angle_deg: float = param(5.0, lo=0.0, hi=90.0, doc="merge: normals agree within this angle", unit="deg")
     merge_offset_m: float = param(0.05, lo=0.0, doc="merge: each centroid within this distance of the other plane", unit="m")
@@ -118,15 +121,19 @@ def _uniform(state):
 # ---- shared numba pieces -------------------------------------------------------------------------------------------------
 
 @njit(cache=True)
-def _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max):
-    """planes.classify for one normal (thesis Alg. 6 with the slanted class); keep the two identical."""
+def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
+    """planes.classify for one normal (thesis Alg. 6, plus slanted and raised); keep the two identical."""
     cu = nx * up[0] + ny * up[1] + nz * up[2]
     a = abs(cu)
     if a > 1.0:
         a = 1.0
     tilt = np.degrees(np.arccos(a))
     if tilt < sl_min:
-        return 0 if cu > 0 else 1
+        if cu <= 0:
+            return 1
+        if cam_h == cam_h and cam_h - d * cu > ground_max_h:  # cam_h is NaN without a mount
+            return 6
+        return 0
     if tilt > sl_max:
         hx, hy, hz = nx - cu * up[0], ny - cu * up[1], nz - cu * up[2]
         hf = hx * fwd[0] + hy * fwd[1] + hz * fwd[2]
@@ -258,7 +265,7 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
 
 @njit(cache=True)
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
-                  per_window, up, fwd, left, sl_min, sl_max, drop, state,
+                  per_window, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
                   out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
     H, W = depth.shape
     npx = H * W
@@ -368,7 +375,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
                 break
             if d < 0:  # rectify: the normal faces the camera
                 nx, ny, nz, d = -nx, -ny, -nz, -d
-            cls = _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max)
+            cls = _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h)
             dropped = drop[cls]
             # one pass: inliers of the refitted plane go out, the rest are compacted to the front
             keep = 0
@@ -458,7 +465,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
 
 @njit(cache=True)
 def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, eps, alpha, up, fwd, left,
-             sl_min, sl_max, drop, state, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
+             sl_min, sl_max, cam_h, ground_max_h, drop, state, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
     H, W = depth.shape
     npx = H * W
     flat = depth.ravel()
@@ -549,7 +556,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
         nx, ny, nz, d = _refit_nb(lx, ly, lz, act, n_in)
         if d < 0:
             nx, ny, nz, d = -nx, -ny, -nz, -d
-        cls = _classify_nb(nx, ny, nz, up, fwd, left, sl_min, sl_max)
+        cls = _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h)
         if drop[cls]:
             for a in range(n_in):
                 j = li[a]
@@ -596,7 +603,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
 
 # ---- numpy paths (same algorithms, vectorised per window; for the benchmark) ---------------------------------------------
 
-def _fspf_plus_np(depth, cam, cfg, dcfg, axes, drop, rng):
+def _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
     H, W = depth.shape
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
     elig = depth_constraints(depth, dcfg.min_depth, dcfg.max_depth)
@@ -657,7 +664,7 @@ def _fspf_plus_np(depth, cam, cfg, dcfg, axes, drop, rng):
             n_in = int(inl.sum())
             if n_in <= cfg.n_min:
                 break
-            cls = int(classify(n[None], *axes, cfg.slanted_min_deg, cfg.slanted_max_deg)[0])
+            cls = int(classes_of(n[None], np.array([d]))[0])
             sel = active[inl]
             if drop[cls]:
                 n_drop += n_in
@@ -675,7 +682,7 @@ def _fspf_plus_np(depth, cam, cfg, dcfg, axes, drop, rng):
     return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf+")
 
 
-def _fspf_np(depth, cam, cfg, dcfg, axes, drop, rng):
+def _fspf_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
     H, W = depth.shape
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
     elig = depth_constraints(depth, dcfg.min_depth, dcfg.max_depth)
@@ -720,7 +727,7 @@ def _fspf_np(depth, cam, cfg, dcfg, axes, drop, rng):
             continue
         j, P = j[inl], P[inl]
         n, d = rectify(*fit_plane(P))
-        cls = int(classify(n[None], *axes, cfg.slanted_min_deg, cfg.slanted_max_deg)[0])
+        cls = int(classes_of(n[None], np.array([d]))[0])
         j, first = np.unique(j, return_index=True)
         P = P[first]
         new = (st[j] == 1) | (st[j] == 2)
@@ -763,11 +770,28 @@ def _prepare(depth_m, cam: CameraModel):
     return depth
 
 
-def _finish(planes: Planes, cfg: FspfConfig, axes, t0: float, moments=None) -> Planes:
+class _Classes:
+    """Plane classes for one camera: gravity axes and height from the mount, bounds from the config."""
+
+    def __init__(self, cfg: FspfConfig, mount: Transform | None) -> None:
+        self.up, self.fwd, self.left = camera_axes(mount)
+        self.cam_h = float(mount.translation[2]) if mount is not None else float("nan")
+        self.cfg = cfg
+
+    def __call__(self, normals: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+        c = self.cfg
+        return classify(normals, self.up, self.fwd, self.left, c.slanted_min_deg, c.slanted_max_deg, offsets,
+                        self.cam_h, c.ground_max_height)
+
+    def args(self) -> tuple:
+        c = self.cfg
+        return (self.up, self.fwd, self.left, c.slanted_min_deg, c.slanted_max_deg, self.cam_h, c.ground_max_height)
+
+
+def _finish(planes: Planes, cfg: FspfConfig, classes_of: _Classes, t0: float, moments=None) -> Planes:
     if cfg.merge and len(planes) > 1:
         drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
-        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, *axes, cfg.slanted_min_deg,
-                              cfg.slanted_max_deg, drop, moments)
+        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, classes_of, drop, moments)
     planes.stats.planes = len(planes)
     planes.stats.elapsed_ms = (time.perf_counter() - t0) * 1e3
     return planes
@@ -787,11 +811,11 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     cfg = cfg or FspfConfig()
     dcfg = depth_cfg or DepthConfig()
     depth = _prepare(depth_m, cam)
-    axes = camera_axes(mount)
+    classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
     if (backend or cfg.backend) == "numpy":
-        planes = _fspf_plus_np(depth, cam, cfg, dcfg, axes, _drop_mask(cfg), np.random.default_rng(seed))
-        return _finish(planes, cfg, axes, t0)
+        planes = _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
+        return _finish(planes, cfg, classes_of, t0)
     H, W = depth.shape
     n_cap = H * W
     p_cap = n_cap // (cfg.n_min + 1) + 1
@@ -804,14 +828,14 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     stats = np.zeros(8, np.int64)
     n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
                          cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
-                         cfg.ransac_max_iter, cfg.planes_per_window, *axes, cfg.slanted_min_deg, cfg.slanted_max_deg,
+                         cfg.ransac_max_iter, cfg.planes_per_window, *classes_of.args(),
                          _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
                          pl_mom, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats[:6])), (H, W), "fspf+")
     planes.stats.windows, planes.stats.visited = int(stats[6]), int(stats[7])
     s1, s2 = moments_from_sums(pl_mom[:p])
-    return _finish(planes, cfg, axes, t0, (planes.counts.astype(np.float64), s1, s2))
+    return _finish(planes, cfg, classes_of, t0, (planes.counts.astype(np.float64), s1, s2))
 
 
 def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
@@ -821,11 +845,11 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     cfg = cfg or FspfConfig()
     dcfg = depth_cfg or DepthConfig()
     depth = _prepare(depth_m, cam)
-    axes = camera_axes(mount)
+    classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
     if (backend or cfg.backend) == "numpy":
-        planes = _fspf_np(depth, cam, cfg, dcfg, axes, _drop_mask(cfg), np.random.default_rng(seed))
-        return _finish(planes, cfg, axes, t0)
+        planes = _fspf_np(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
+        return _finish(planes, cfg, classes_of, t0)
     H, W = depth.shape
     l = cfg.fspf_local_samples
     n_cap = cfg.fspf_max_points + l
@@ -838,11 +862,11 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     stats = np.zeros(6, np.int64)
     n, p = _fspf_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.fspf_max_points,
                     cfg.fspf_max_neighborhoods, l, cfg.fspf_window_px, cfg.delta_m, cfg.fspf_error_m,
-                    cfg.fspf_min_inlier_fraction, *axes, cfg.slanted_min_deg, cfg.slanted_max_deg, _drop_mask(cfg),
+                    cfg.fspf_min_inlier_fraction, *classes_of.args(), _drop_mask(cfg),
                     _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats)), (H, W), "fspf")
-    return _finish(planes, cfg, axes, t0)
+    return _finish(planes, cfg, classes_of, t0)
 
 
 def filter_planes(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None,

@@ -17,8 +17,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numba import njit
 
-PLANE_CLASSES = ("ground", "ceiling", "left", "right", "front", "slanted")
-GROUND, CEILING, LEFT, RIGHT, FRONT, SLANTED = range(6)
+PLANE_CLASSES = ("ground", "ceiling", "left", "right", "front", "slanted", "raised")
+GROUND, CEILING, LEFT, RIGHT, FRONT, SLANTED, RAISED = range(7)
 
 
 @dataclass
@@ -171,7 +171,7 @@ def ransac_plane(points: np.ndarray, epsilon: float, beta: float = 3.0, rng: np.
         return np.array([0.0, 0.0, 1.0]), 0.0, np.zeros(m, bool)
     sub = p if m <= subset else p[rng.integers(0, m, subset)]
     best_n, best_d, best = np.array([0.0, 0.0, 1.0]), 0.0, -1
-    need, it, batch = float(max_iter), 0, 8
+    need, it, batch = float(max_iter), 0, 32
     while it < min(need, max_iter):
         k = int(min(batch, max_iter - it))
         idx = rng.integers(0, m, (k, 3))
@@ -202,11 +202,14 @@ def ransac_plane(points: np.ndarray, epsilon: float, beta: float = 3.0, rng: np.
 # ---- classification --------------------------------------------------------------------------------------------------
 
 def classify(normals: np.ndarray, up: np.ndarray, forward: np.ndarray, left: np.ndarray,
-             slanted_min_deg: float = 5.0, slanted_max_deg: float = 80.0) -> np.ndarray:
-    """Class of each camera-facing normal (P×3, optical frame) from its angle to gravity.
+             slanted_min_deg: float = 3.0, slanted_max_deg: float = 80.0, offsets: np.ndarray | None = None,
+             camera_height: float = float("nan"), ground_max_height: float = 0.15) -> np.ndarray:
+    """Class of each camera-facing normal (P×3, optical frame) from its angle to gravity (thesis Alg. 6).
 
-    Tilt from horizontal below slanted_min_deg: ground (normal up) or ceiling (down); above slanted_max_deg:
-    a wall, front when it faces back along the view within 45°, else left or right; between: slanted.
+    Tilt from level below slanted_min_deg: ground (normal up) or ceiling (down); above slanted_max_deg: a
+    wall, front when it faces back along the view within 45°, else left or right; between: slanted. With
+    the offsets and the camera's height above the floor, an up-facing level plane higher than
+    ground_max_height (a table or box top, a step) is "raised" rather than ground.
     `up, forward, left` come from `frontend.camera.camera_axes(mount)`.
     """
     n = np.atleast_2d(np.asarray(normals, dtype=np.float64))
@@ -215,7 +218,11 @@ def classify(normals: np.ndarray, up: np.ndarray, forward: np.ndarray, left: np.
     h = n - cu[:, None] * up
     hf, hl = h @ forward, h @ left
     wall = np.where(-hf >= np.abs(hl), FRONT, np.where(hl < 0, LEFT, RIGHT))
-    out = np.where(tilt < slanted_min_deg, np.where(cu > 0, GROUND, CEILING),
+    level_up = np.full(len(n), GROUND)
+    if offsets is not None and np.isfinite(camera_height):
+        height = camera_height - np.asarray(offsets, float) * cu  # the plane's height above the floor
+        level_up = np.where(height > ground_max_height, RAISED, GROUND)
+    out = np.where(tilt < slanted_min_deg, np.where(cu > 0, level_up, CEILING),
                    np.where(tilt > slanted_max_deg, wall, SLANTED))
     return out.astype(np.int8)
 
@@ -312,16 +319,15 @@ def _merge_nb(normals, offsets, cnt, s, ss, cos_max, offset_m):
     return group, g_n[:G].copy(), g_d[:G].copy()
 
 
-def merge_planes(planes: Planes, angle_deg: float, offset_m: float, up: np.ndarray, forward: np.ndarray,
-                 left: np.ndarray, slanted_min_deg: float = 5.0, slanted_max_deg: float = 80.0,
+def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=None,
                  drop_classes: tuple[int, ...] = (), moments: tuple | None = None) -> Planes:
     """Merge coplanar patches (thesis future work; Biswas's polygon merging): one refitted plane each.
 
     Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg
     and where each one's centroid lies within offset_m of the other's plane; the merged plane is refitted by
-    least squares from the accumulated moments (Σp, Σppᵀ), rectified and reclassified. Planes whose new
-    class is in drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the
-    points when the caller has them.
+    least squares from the accumulated moments (Σp, Σppᵀ) and rectified. `classify_fn(normals, offsets)`
+    gives the merged planes' classes (default: the class of their largest patch); planes whose class is in
+    drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the points.
     """
     P = len(planes)
     if P <= 1:
@@ -334,7 +340,12 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, up: np.ndarr
     G = len(offsets)
     if G == P:
         return planes
-    classes = classify(normals, up, forward, left, slanted_min_deg, slanted_max_deg)
+    if classify_fn is not None:
+        classes = np.asarray(classify_fn(normals, offsets), np.int8)
+    else:
+        order = np.argsort(-np.asarray(cnt), kind="stable")
+        classes = np.zeros(G, np.int8)
+        classes[group[order][::-1]] = planes.classes[order][::-1]  # the largest patch writes last
     new_plane = group.astype(np.int32)[planes.plane]
     counts = np.bincount(group, weights=planes.counts, minlength=G).astype(np.int64)
     merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes, counts,
@@ -346,6 +357,6 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, up: np.ndarr
             merged = merged.select(keep)
             st = merged.stats
             merged.stats = FrameStats(st.pixels, st.ineligible, st.inliers - lost, st.dropped + lost, st.outliers,
-                                      st.remaining, len(merged), st.elapsed_ms)
+                                      st.remaining, len(merged), st.elapsed_ms, st.windows, st.visited)
     merged.stats.planes = len(merged)
     return merged

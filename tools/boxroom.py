@@ -133,10 +133,10 @@ def default_mount(pitch_deg: float = 0.0, height: float = 1.0) -> Transform:
 
 
 def frame(pose=(0.6, 0.3, 0.0), pitch_deg: float = 0.0, seed: int = 0, room: BoxRoom | None = None,
-          camera: CameraModel | None = None):
+          camera: CameraModel | None = None, height: float = 1.0):
     """One noisy frame: (depth, surface ids, room, camera, mount)."""
     room = room or BoxRoom()
     camera = camera or kinect_v2()
-    mount = default_mount(pitch_deg)
+    mount = default_mount(pitch_deg, height)
     depth, sid = render_depth(room, pose, mount, camera, np.random.default_rng(seed))
     return depth, sid, room, camera, mount

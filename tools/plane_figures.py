@@ -10,7 +10,7 @@ import numpy as np
 from frontend.planes import PLANE_CLASSES, Planes
 
 CLASS_COLOURS = {"ground": "#8c564b", "ceiling": "#7f7f7f", "left": "#1f77b4", "right": "#2ca02c",
-                 "front": "#d62728", "slanted": "#ff7f0e"}
+                 "front": "#d62728", "slanted": "#ff7f0e", "raised": "#9467bd"}
 
 
 def plane_figure(planes: Planes, path: str | Path, title: str = "", depth_range: tuple[float, float] = (0.5, 4.5),

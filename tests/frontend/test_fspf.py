@@ -7,8 +7,8 @@ import pytest
 
 from frontend.camera import depth_constraints
 from frontend.fspf import FspfConfig, filter_planes, fspf, fspf_plus
-from frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES, RIGHT, SLANTED, FrameStats, Planes,
-                             classify, fit_plane, merge_planes, ransac_plane)
+from frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES, RAISED, RIGHT, SLANTED, FrameStats,
+                             Planes, classify, fit_plane, merge_planes, ransac_plane)
 from frontend.records import CameraModel
 from tests.frontend.plane_truth import recovered, score
 from tools.boxroom import frame, noise_sigma
@@ -127,13 +127,29 @@ def test_classify_by_angle_to_gravity():
     def n_at(tilt_deg, toward):  # a camera-facing normal tilted from up toward a horizontal direction
         t = np.radians(tilt_deg)
         return np.cos(t) * up + np.sin(t) * np.asarray(toward, float)
-    normals = [up, -up, [1.0, 0, 0], [-1.0, 0, 0], [0, 0, -1.0], n_at(12, [0, 0, -1]), n_at(3, [0, 0, -1]),
-               n_at(87, [0, 0, -1])]
+    normals = [up, -up, [1.0, 0, 0], [-1.0, 0, 0], [0, 0, -1.0], n_at(12, [0, 0, -1]), n_at(2, [0, 0, -1]),
+               n_at(87, [0, 0, -1]), n_at(4.76, [1, 0, 0])]
     got = classify(np.array(normals), up, fwd, left)
-    # the floor faces up; a wall on the left faces right (−left); the wall ahead faces back
-    assert got.tolist() == [GROUND, CEILING, LEFT, RIGHT, FRONT, SLANTED, GROUND, FRONT]
+    # the floor faces up; a wall on the left faces right (−left); the wall ahead faces back; a 1:12 ramp slants
+    assert got.tolist() == [GROUND, CEILING, LEFT, RIGHT, FRONT, SLANTED, GROUND, FRONT, SLANTED]
     got = classify(np.array([n_at(12, [0, 0, -1])]), up, fwd, left, slanted_min_deg=15)
     assert got.tolist() == [GROUND]
+    # with the camera 1 m above the floor: the floor (1 m below) is ground, a table top 0.25 m below is raised
+    got = classify(np.array([up, up, -up]), up, fwd, left, offsets=np.array([1.0, 0.25, 1.6]), camera_height=1.0)
+    assert got.tolist() == [GROUND, RAISED, CEILING]
+
+
+def test_box_top_is_raised_not_ground():
+    depth, sid, room, cam, mount = frame(pose=POSE, seed=3, pitch_deg=10.0, height=1.6)
+    p = fspf_plus(depth, cam, FspfConfig(drop_classes=[]), mount=mount, seed=1)
+    lab = p.label_image()
+    top = lab[(sid == 9) & (lab > 0)] - 1  # the box top, 0.8 m above the floor
+    assert len(top) > 500 and (p.classes[top] == RAISED).mean() > 0.85  # the rest: edge pixels of the sides
+    floor = lab[(sid == 1) & (lab > 0)] - 1
+    assert (p.classes[floor] == GROUND).mean() > 0.95
+    # by default ground and ceiling are dropped, the box top is kept
+    q = fspf_plus(depth, cam, FspfConfig(), mount=mount, seed=1)
+    assert RAISED in q.classes and GROUND not in q.classes
 
 
 def test_fits_and_ransac():
@@ -166,8 +182,10 @@ def test_merge_two_patches_of_one_wall():
     planes = Planes(pts, np.repeat([0, 1, 2], [500, 300, 200]).astype(np.int32), np.zeros((1000, 2), np.int32),
                     normals, np.array([3.0, 3.0, 3.3]), np.array([FRONT] * 3, np.int8), np.array([500, 300, 200]),
                     FrameStats(pixels=1000, inliers=1000), (10, 100))
-    m = merge_planes(planes, 5.0, 0.05, up, fwd, left)
-    assert len(m) == 2 and m.counts.tolist() == [800, 200]
+    m = merge_planes(planes, 5.0, 0.05, lambda n, d: classify(n, up, fwd, left))
+    assert len(m) == 2 and m.counts.tolist() == [800, 200] and m.classes.tolist() == [FRONT, FRONT]
     assert np.allclose(m.normals[0], [0, 0, -1], atol=2e-3) and m.offsets[0] == pytest.approx(3.0, abs=2e-3)
     assert m.stats.planes == 2 and planes.stats.planes == 0  # the input is not changed
-    assert len(merge_planes(planes, 1.0, 0.05, up, fwd, left)) == 3  # 2° apart: not within 1°
+    assert len(merge_planes(planes, 1.0, 0.05)) == 3  # 2° apart: not within 1°
+    dropped = merge_planes(planes, 5.0, 0.05, drop_classes=(FRONT,))
+    assert len(dropped) == 0 and dropped.stats.dropped == 1000 and dropped.stats.inliers == 0
