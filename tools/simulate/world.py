@@ -207,12 +207,16 @@ class World:
         self.solids.append(s)
         return s
 
-    def add_wall(self, name: str, a, b, thickness: float) -> Solid:
+    def add_wall(self, name: str, a, b, thickness: float, extend_a: bool = True, extend_b: bool = True) -> Solid:
+        """A wall along the centre line a → b; ends marked `extend` reach half a thickness further so that
+        corners close (door jambs are not extended: a door keeps its clear width)."""
         a, b = np.asarray(a, float), np.asarray(b, float)
+        u = (b - a) / float(np.hypot(*(b - a)))
+        a = a - u * thickness / 2 if extend_a else a
+        b = b + u * thickness / 2 if extend_b else b
         length = float(np.hypot(*(b - a)))
-        yaw = math.atan2(b[1] - a[1], b[0] - a[0])
-        # walls overlap at their ends by half a thickness so corners close
-        return self.add_prism(name, "wall", rectangle((a + b) / 2, (length + thickness, thickness), yaw),
+        yaw = math.atan2(u[1], u[0])
+        return self.add_prism(name, "wall", rectangle((a + b) / 2, (length, thickness), yaw),
                               0.0, self.wall_height, "wall", "wall", "wall")
 
     def add_table(self, name: str, center, size, yaw: float, height: float = 0.75, top: float = 0.04,
@@ -321,7 +325,8 @@ class World:
 
 
 def _rasterise(s: Solid, occ: np.ndarray, x0: float, y0: float, res: float) -> None:
-    """Mark the cells whose centre lies in the solid's footprint (always at least the cells it touches)."""
+    """Mark the cells whose centre lies in the solid's footprint, and (so that a solid thinner than a cell
+    still leaves an unbroken line) the cells its centre line passes through."""
     cx, cy, r = s.bounding_circle()
     c0 = max(int((cx - r - x0) / res) - 1, 0)
     c1 = min(int((cx + r - x0) / res) + 2, occ.shape[1])
@@ -331,9 +336,21 @@ def _rasterise(s: Solid, occ: np.ndarray, x0: float, y0: float, res: float) -> N
         return
     cols, rows = np.meshgrid(np.arange(c0, c1), np.arange(r0, r1))
     xy = np.column_stack((x0 + (cols.ravel() + 0.5) * res, y0 + (rows.ravel() + 0.5) * res))
-    # half a cell of slack so that walls thinner than a cell still leave a continuous line
-    hit = s.footprint_distance(xy) <= res * 0.5
+    hit = s.footprint_distance(xy) <= 0.0
     occ[rows.ravel()[hit], cols.ravel()[hit]] = 1
+    if s.polygon is not None and len(s.polygon) == 4:  # rectangles: the line between the short sides' midpoints
+        p = s.polygon
+        sides = [np.hypot(*(p[(k + 1) % 4] - p[k])) for k in range(4)]
+        k = int(np.argmin(sides))
+        a, b = (p[k] + p[(k + 1) % 4]) / 2, (p[(k + 2) % 4] + p[(k + 3) % 4]) / 2
+    else:
+        a = b = np.array([cx, cy])
+    n = int(np.hypot(*(b - a)) / (res / 4)) + 2
+    line = a + np.linspace(0.0, 1.0, n)[:, None] * (b - a)
+    cc = np.floor((line[:, 0] - x0) / res).astype(int)
+    rr = np.floor((line[:, 1] - y0) / res).astype(int)
+    ok = (cc >= 0) & (cc < occ.shape[1]) & (rr >= 0) & (rr < occ.shape[0])
+    occ[rr[ok], cc[ok]] = 1
 
 
 # ---- world files ---------------------------------------------------------------------------------------------------
@@ -447,13 +464,15 @@ def _wall_segments(data: dict, where: str) -> list[tuple[np.ndarray, np.ndarray]
 
 
 def _cut_doors(segs, doors, thickness: float, where: str):
-    """Remove each door's gap (width along the wall) from every wall segment passing through its point."""
+    """Remove each door's gap (width along the wall) from every wall segment passing through its point.
+    Segments are (a, b, extend_a, extend_b); the ends a door creates are not extended."""
+    segs = [(a, b, True, True) for a, b in segs]
     for i, d in enumerate(doors):
         r = _Reader(where, f"doors[{i}]", d)
         at = r.vec("at", 2)
         width = r.num("width", 1.0, positive=True)
         out, cut = [], False
-        for a, b in segs:
+        for a, b, ea, eb in segs:
             ab = b - a
             length = float(np.hypot(*ab))
             u = ab / length
@@ -462,11 +481,11 @@ def _cut_doors(segs, doors, thickness: float, where: str):
             if off <= thickness and -width / 2 < s < length + width / 2:
                 cut = True
                 if s - width / 2 > 1e-6:
-                    out.append((a, a + u * (s - width / 2)))
+                    out.append((a, a + u * (s - width / 2), ea, False))
                 if length - (s + width / 2) > 1e-6:
-                    out.append((a + u * (s + width / 2), b))
+                    out.append((a + u * (s + width / 2), b, False, eb))
             else:
-                out.append((a, b))
+                out.append((a, b, ea, eb))
         if not cut:
             raise WorldError(f"{where}: doors[{i}] at {at.tolist()} is on no wall; put it on a wall's line")
         segs = out
@@ -517,8 +536,8 @@ def world_from_dict(data: dict, base: Path = Path("."), default_name: str = "wor
     world.description = str(data.get("description", ""))
     thickness = top.num("wall_thickness", 0.15, positive=True)
     segs = _cut_doors(_wall_segments(data, where), data.get("doors") or [], thickness, where)
-    for i, (a, b) in enumerate(segs):
-        world.add_wall(f"wall {i}", a, b, thickness)
+    for i, (a, b, ea, eb) in enumerate(segs):
+        world.add_wall(f"wall {i}", a, b, thickness, ea, eb)
     if data.get("floorplan"):
         _floorplan_walls(world, data["floorplan"], base, where)
     if not world.solids:
