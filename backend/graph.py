@@ -53,6 +53,7 @@ class GraphConfig(StageConfig):
     loop_sigma_yaw_deg: float = param(1.0, lo=0.0, lo_open=True, doc="loop factor yaw σ", unit="deg")
     loop_search_range: float = param(15.0, lo=0.0, lo_open=True, doc="query points beyond this range are dropped", unit="m")
     loop_point_voxel: float = param(0.05, lo=0.0, doc="query points thinned to one per cell of this size", unit="m")
+    loop_nearest_member: bool = param(True, doc="tie a loop to the submap node nearest the match (else to the first)")
     robust_kernel: str = param("cauchy", choices=("cauchy", "gnc", "huber", "none"), doc="kernel on loop factors")
     robust_scale: float = param(1.0, lo=0.0, lo_open=True, doc="kernel scale, in σ units")
     optimize_every: int = param(10, lo=1, doc="ISAM2 update every n nodes")

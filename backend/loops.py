@@ -34,6 +34,7 @@ class LoopSubmap:
     coarse: LikelihoodField
     fine: LikelihoodField
     centre: np.ndarray  # (2,) mean node position, anchor frame
+    member_poses: np.ndarray  # (n, 3) the member nodes' poses in the anchor frame when the submap was built
     grids: SearchGrids | None = None
 
     @property
@@ -73,7 +74,8 @@ class LoopCloser:
         self.points: dict[int, np.ndarray] = {}  # node id → thinned scan points (base_link)
         self.stats = LoopStats()
         self.loops: list[LoopConstraint] = []
-        self._n_added = 0
+        self._centres = np.zeros((0, 3))
+        self._anchors = np.zeros(0, np.int64)
 
     def add_node(self, kf: Keyframe, graph: PoseGraph) -> None:
         """Register a keyframe (after the graph has its node); finish a submap every `submap_nodes` nodes."""
@@ -96,7 +98,7 @@ class LoopCloser:
         coarse = LikelihoodField.covering(allp, c.loop_resolution, c.loop_sigma)
         fine = LikelihoodField(coarse.origin, coarse.resolution, coarse.shape[1], coarse.shape[0], c.loop_sigma_fine)
         fine.insert(allp)
-        self.submaps.append(LoopSubmap(len(self.submaps), list(ids), coarse, fine, rel[:, :2].mean(axis=0)))
+        self.submaps.append(LoopSubmap(len(self.submaps), list(ids), coarse, fine, rel[:, :2].mean(axis=0), rel))
         self.open_nodes = []
 
     def candidates(self, node: int, graph: PoseGraph) -> list[LoopSubmap]:
@@ -106,12 +108,12 @@ class LoopCloser:
         if last <= 0:
             return []
         p = graph.est[node]
-        out = []
-        for sm in self.submaps[:last]:
-            centre = se2.transform_points(graph.est[sm.anchor], sm.centre[None])[0]
-            if math.hypot(centre[0] - p[0], centre[1] - p[1]) <= c.loop_search_radius:
-                out.append(sm)
-        return out
+        if len(self._centres) < len(self.submaps):
+            self._centres = np.array([[*sm.centre, 0.0] for sm in self.submaps])
+            self._anchors = np.array([sm.anchor for sm in self.submaps])
+        world = se2.compose(graph.est[self._anchors[:last]], self._centres[:last])
+        near = np.flatnonzero(np.hypot(world[:, 0] - p[0], world[:, 1] - p[1]) <= c.loop_search_radius)
+        return [self.submaps[i] for i in near]
 
     def search(self, node: int, graph: PoseGraph) -> list[LoopConstraint]:
         """Verify every candidate submap for this node; return the accepted constraints (not yet in the graph)."""
@@ -127,7 +129,11 @@ class LoopCloser:
             guess = se2.between(graph.est[sm.anchor], graph.est[node])
             lc = self.verify(sm, pts, guess)
             if lc is not None:
-                found.append(LoopConstraint(sm.anchor, node, lc[0], lc[1], lc[2], sm.index))
+                # Tie the loop to the member whose pose is nearest the match, not to the anchor: the submap is
+                # only as rigid as the front end was while it was built, so the constraint is truest nearby.
+                j = int(np.argmin(np.hypot(*(sm.member_poses[:, :2] - lc[0][:2]).T))) if self.cfg.loop_nearest_member else 0
+                rel = se2.between(sm.member_poses[j], lc[0])
+                found.append(LoopConstraint(sm.node_ids[j], node, rel, lc[1], lc[2], sm.index))
         self.loops.extend(found)
         self.stats.seconds += time.perf_counter() - t0
         return found

@@ -10,7 +10,7 @@ squared rotational error (deg, deg²), each as mean ± std (population std, ddof
 
 from __future__ import annotations
 
-import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -163,21 +163,96 @@ def rpe(t_est, est, t_ref, ref, delta: int = 1, max_diff: float = 0.01) -> dict:
             "rot_rmse_deg": float(np.sqrt(np.mean(a ** 2))), "rot_mean_deg": float(a.mean()), "rot_max_deg": float(a.max())}
 
 
-def loop_precision(loops, t_ref, ref, trans_tol: float = 0.2, rot_tol_deg: float = 3.0, max_diff: float = 0.05) -> dict:
-    """Share of accepted loop constraints that agree with the ground truth.
+@dataclass
+class Reference:
+    """A reference trajectory: poses at stamps, with a connected-component label per pose (poses in different
+    components share no frame: relations-derived references can fall apart into pieces)."""
 
-    `loops`: iterable of (t_a, t_b, measured relative pose a⁻¹⊕b). A loop is correct when its measurement
-    differs from the ground truth's relative pose by less than trans_tol metres and rot_tol_deg degrees.
+    t: np.ndarray  # (M,) seconds, sorted
+    poses: np.ndarray  # (M, 3)
+    comp: np.ndarray  # (M,) int
+
+    def at(self, t, scan_t: np.ndarray | None = None, scan_poses: np.ndarray | None = None,
+           max_diff: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+        """Reference poses (and components; −1 = none within max_diff s) at times t.
+
+        With `scan_t`/`scan_poses` (a locally accurate trajectory, e.g. the front end's), the nearest
+        reference pose is carried to t by that trajectory's motion: ref(r) ⊕ (ℓ(r)⁻¹ ⊕ ℓ(t)); otherwise the
+        reference is interpolated.
+        """
+        t = np.atleast_1d(np.asarray(t, dtype=float))
+        if scan_t is None:
+            i = np.clip(np.searchsorted(self.t, t), 1, len(self.t) - 1)
+            j = np.where(np.abs(t - self.t[i - 1]) <= np.abs(self.t[i] - t), i - 1, i)
+            ok = np.abs(self.t[j] - t) <= max_diff
+            return se2.interpolate(self.t, self.poses, t), np.where(ok, self.comp[j], -1)
+        j = _lookup(self.t, t, max_diff)
+        ok = j >= 0
+        j = np.where(ok, j, 0)
+        order = np.argsort(scan_t)
+        st, sp = np.asarray(scan_t, dtype=float)[order], np.asarray(scan_poses, dtype=float)[order]
+        ir = _lookup(st, self.t[j], 1e-3)
+        it = _lookup(st, t, 1e-3)
+        ok &= (ir >= 0) & (it >= 0)
+        motion = se2.between(sp[np.where(ok, ir, 0)], sp[np.where(ok, it, 0)])
+        return se2.compose(self.poses[j], motion), np.where(ok, self.comp[j], -1)
+
+
+def reference_from_relations(relations: np.ndarray) -> Reference:
+    """The trajectory the relations were taken from, recovered by solving them as a pose graph (gtsam LM),
+    one gauge per connected component. Kümmerle et al.'s relations come from one manually checked
+    trajectory, so they agree to their rounding."""
+    import gtsam
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
+    rel = np.asarray(relations, dtype=float)
+    keys = np.round(rel[:, :2], 6)
+    u, inv = np.unique(keys, return_inverse=True)
+    inv = inv.reshape(-1, 2)
+    m = coo_matrix((np.ones(len(rel)), (inv[:, 0], inv[:, 1])), shape=(len(u), len(u))).tocsr()
+    ncomp, comp = connected_components(m, directed=False)
+    adj: dict[int, list[tuple[int, np.ndarray]]] = {}
+    for (a, b), r in zip(inv, rel[:, 2:5]):
+        adj.setdefault(a, []).append((b, r))
+        adj.setdefault(b, []).append((a, se2.inverse(r)))
+    guess = np.full((len(u), 3), np.nan)
+    graph = gtsam.NonlinearFactorGraph()
+    noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.01, 0.01, 0.005]))
+    for c in range(ncomp):
+        root = int(np.flatnonzero(comp == c)[0])
+        guess[root] = 0.0
+        graph.add(gtsam.PriorFactorPose2(root, gtsam.Pose2(0, 0, 0), gtsam.noiseModel.Isotropic.Sigma(3, 1e-6)))
+        order = breadth_first_order(m + m.T, root, directed=False, return_predecessors=False)
+        for a in order:
+            for b, r in adj.get(int(a), []):
+                if np.isnan(guess[b, 0]):
+                    guess[b] = se2.compose(guess[a], r)
+    for (a, b), r in zip(inv, rel[:, 2:5]):
+        graph.add(gtsam.BetweenFactorPose2(int(a), int(b), gtsam.Pose2(*r), noise))
+    vals = gtsam.Values()
+    for i, p in enumerate(guess):
+        vals.insert(i, gtsam.Pose2(*p))
+    res = gtsam.LevenbergMarquardtOptimizer(graph, vals).optimize()
+    return Reference(u, gtsam.utilities.extractPose2(res), comp)
+
+
+def loop_precision(loops, ref_a: np.ndarray, ref_b: np.ndarray, comp_a: np.ndarray, comp_b: np.ndarray,
+                   trans_tol: float = 0.1, rot_tol_deg: float = 2.0) -> dict:
+    """Share of accepted loop constraints that agree with the reference.
+
+    `loops`: N measured relative poses a⁻¹⊕b (N×3); ref_a, ref_b the reference poses of both ends, comp_*
+    their components (−1 = no reference there). A loop is correct when it differs from the reference's
+    relative pose by less than trans_tol metres and rot_tol_deg degrees.
     """
-    t_ref = np.asarray(t_ref, dtype=float)
-    order = np.argsort(t_ref)
-    ts, rs = t_ref[order], np.asarray(ref, dtype=float)[order]
-    good = checked = 0
-    for ta, tb, meas in loops:
-        ia, ib = _lookup(ts, np.array([ta, tb]), max_diff)
-        if ia < 0 or ib < 0:
-            continue
-        err = se2.between(se2.between(rs[ia], rs[ib]), meas)
-        checked += 1
-        good += bool(math.hypot(err[0], err[1]) < trans_tol and abs(math.degrees(err[2])) < rot_tol_deg)
-    return {"checked": checked, "correct": good, "precision": good / checked if checked else float("nan")}
+    meas = np.asarray(loops, dtype=float).reshape(-1, 3)
+    ok = (comp_a >= 0) & (comp_a == comp_b)
+    if not ok.any():
+        return {"loops": int(len(meas)), "checked": 0, "correct": 0, "precision": float("nan")}
+    err = se2.between(se2.between(ref_a[ok], ref_b[ok]), meas[ok])
+    et = np.hypot(err[:, 0], err[:, 1])
+    er = np.degrees(np.abs(err[:, 2]))
+    good = (et < trans_tol) & (er < rot_tol_deg)
+    return {"loops": int(len(meas)), "checked": int(ok.sum()), "correct": int(good.sum()),
+            "precision": float(good.mean()), "trans_tol": trans_tol, "rot_tol_deg": rot_tol_deg,
+            "median_trans_error": float(np.median(et)), "median_rot_error_deg": float(np.median(er))}

@@ -316,6 +316,21 @@ def branch_and_bound(pyr, cells, wx, wy, min_score):
     return br, bx, by, best
 
 
+@njit(cache=True)
+def rotated_cells(pts, cx, cy, angles, ox, oy, res):
+    """cells[r, k] = (col, row) of point k rotated by angles[r] and translated by (cx, cy)."""
+    nr = angles.shape[0]
+    n = pts.shape[0]
+    out = np.empty((nr, n, 2), np.int64)
+    for r in range(nr):
+        c = math.cos(angles[r])
+        s = math.sin(angles[r])
+        for k in range(n):
+            out[r, k, 0] = int(math.floor((cx + c * pts[k, 0] - s * pts[k, 1] - ox) / res))
+            out[r, k, 1] = int(math.floor((cy + s * pts[k, 0] + c * pts[k, 1] - oy) / res))
+    return out
+
+
 class SearchGrids:
     """The max pyramid of a likelihood field for `branch_and_bound` (uint8, built once per submap)."""
 
@@ -330,10 +345,11 @@ class SearchGrids:
         return int(self.pyramid.nbytes)
 
     def search(self, points: np.ndarray, center, lin_window: float, ang_window: float, min_score: float,
-               ang_step: float | None = None) -> tuple[np.ndarray | None, float]:
+               ang_step: float | None = None, max_range: float = 10.0) -> tuple[np.ndarray | None, float]:
         """Best pose within ±lin_window (m) and ±ang_window (rad) of `center` whose score exceeds min_score.
 
-        The angular step makes the farthest point move about one cell (Hess et al. 2016, eq. 7).
+        The angular step makes a point at the farthest range (at most `max_range`) move about one cell
+        (Hess et al. 2016, eq. 7); farther points move more per step, which the refinement absorbs.
         Returns (pose or None, score).
         """
         f = self.field
@@ -342,16 +358,11 @@ class SearchGrids:
         if len(pts) == 0:
             return None, 0.0
         if ang_step is None:
-            dmax = float(np.sqrt((pts ** 2).sum(axis=1)).max())
+            dmax = min(float(np.sqrt((pts ** 2).sum(axis=1)).max()), max_range)
             ang_step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(dmax, res) ** 2)))
         na = int(math.ceil(ang_window / ang_step))
         angles = center[2] + np.arange(-na, na + 1) * ang_step
-        c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
-        qx = center[0] + c * pts[None, :, 0] - s * pts[None, :, 1]
-        qy = center[1] + s * pts[None, :, 0] + c * pts[None, :, 1]
-        cells = np.empty((len(angles), len(pts), 2), np.int64)
-        cells[:, :, 0] = np.floor((qx - f.origin[0]) / res)
-        cells[:, :, 1] = np.floor((qy - f.origin[1]) / res)
+        cells = rotated_cells(pts, float(center[0]), float(center[1]), angles, f.origin[0], f.origin[1], res)
         wcells = int(math.ceil(lin_window / res))
         r, dx, dy, score = branch_and_bound(self.pyramid, cells, wcells, wcells, float(min_score))
         if r < 0:

@@ -40,7 +40,8 @@ class OdometryConfig(StageConfig):
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(30.0, lo=0.0, lo_open=True, doc="ignore returns farther than this", unit="m")
     use_wheel_odometry: bool = param(True, doc="use the log's wheel odometry as the motion prior")
-    resolution: float = param(0.05, lo=0.0, lo_open=True, doc="likelihood field cell size", unit="m")
+    resolution: float = param(0.05, lo=0.0, lo_open=True, doc="fine likelihood field cell size", unit="m")
+    coarse_resolution: float = param(0.1, lo=0.0, lo_open=True, doc="coarse likelihood field cell size", unit="m")
     submap_size: float = param(30.0, lo=1.0, doc="side of a local submap's square field", unit="m")
     submap_keyframes: int = param(20, lo=1, doc="a new local submap starts every this many keyframes; each holds twice as many")
     sigma_coarse: float = param(0.10, lo=0.0, lo_open=True, doc="field blur for the search and the first Gauss–Newton", unit="m")
@@ -153,7 +154,7 @@ class _LocalSubmap:
     def __init__(self, center, cfg: OdometryConfig) -> None:
         from frontend.likelihood import LikelihoodField
 
-        self.coarse = LikelihoodField.around(center, cfg.submap_size, cfg.resolution, cfg.sigma_coarse)
+        self.coarse = LikelihoodField.around(center, cfg.submap_size, cfg.coarse_resolution, cfg.sigma_coarse)
         self.fine = LikelihoodField.around(center, cfg.submap_size, cfg.resolution, cfg.sigma_fine)
         self.count = 0
 

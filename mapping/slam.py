@@ -44,6 +44,7 @@ class SlamResult:
     timings: dict
     mount: np.ndarray = field(default_factory=lambda: np.zeros(3))  # sensor pose in base_link (x, y, yaw)
     points: list[np.ndarray] | None = None  # per-scan end points (base_link, float32) when kept
+    scans: list[Scan] | None = None  # the Scan records, when kept (for the map)
     duration_s: float = 0.0  # log time spanned by the scans
     warnings: list[str] = field(default_factory=list)
     recoveries: int = 0
@@ -171,11 +172,12 @@ def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) ->
 
 
 def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callable[[float, float], None] | None = None,
-             keep_points: bool = False, max_seconds: float | None = None) -> SlamResult:
+             keep_scans: bool = False, max_seconds: float | None = None) -> SlamResult:
     """Read a log in one pass and run SLAM on its laser scans with its wheel odometry.
 
     `cfg` is a mapping.config.Config (defaults when None); `progress(done_s, total_s)` is called as log time
-    advances; `max_seconds` stops after that much log time (for slices). `source="kos"` (virtual scans from
+    advances; `keep_scans` keeps the Scan records (for the map); `max_seconds` stops after that much log
+    time (for slices). `source="kos"` (virtual scans from
     the depth camera) is not available yet.
     """
     from frontend.logs import detect_topics, open_log
@@ -188,7 +190,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         raise KosmapError(f"unknown source '{source}'; use laser or kos")
     t_start = time.perf_counter()
     ocfg: OdometryConfig = cfg.odometry
-    slam = Slam(ocfg, cfg.graph, keep_points=keep_points)
+    slam = Slam(ocfg, cfg.graph)
+    kept: list[Scan] | None = [] if keep_scans else None
     warnings: list[str] = []
     with open_log(path) as log:
         info = log.info()
@@ -224,6 +227,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
             elif use_odom:
                 state["no_odom"] += 1
             slam.add_scan(scan.stamp_ns, pts, odom)
+            if kept is not None:
+                kept.append(scan)
             wheel.drop_before(scan.stamp_ns - int(2e9))
 
         for rec in log.read(topics):
@@ -259,4 +264,115 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
     if state["no_odom"]:
         warnings.append(f"{state['no_odom']} scan(s) lay outside the wheel odometry's time span: matched without it")
     result.warnings = warnings
+    result.scans = kept
     return result
+
+
+def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = None,
+             ground_truth: str | Path | tuple[np.ndarray, np.ndarray] | None = None) -> dict:
+    """Accuracy of a run: the relations metric (in the scan's frame, which the relations relate) and the
+    loops' precision against the trajectory the relations describe; ATE, RPE and loop precision against a
+    TUM ground truth (base_link)."""
+    from backend import metrics as M
+    from backend.trajio import read_tum
+
+    out: dict = {}
+    mount = np.repeat(result.mount[None], max(len(result.loops), 1), 0)[: len(result.loops)]
+    kstamp = np.array([k.stamp_ns for k in result.keyframes]) * 1e-9
+    la = np.array([lc.a for lc in result.loops], dtype=int)
+    lb = np.array([lc.b for lc in result.loops], dtype=int)
+    meas = np.array([lc.rel for lc in result.loops]).reshape(-1, 3)
+    if relations is not None:
+        rel = M.read_relations(relations) if not isinstance(relations, np.ndarray) else relations
+        sensor = result.sensor_poses()
+        out["relations"] = M.relations_metric(result.stamps, sensor, rel)
+        out["relations_split_30s"] = M.relations_metric_split(result.stamps, sensor, rel)
+        if len(meas):
+            ref = M.reference_from_relations(rel)
+            local = se2.compose(result.local_poses, np.repeat(result.mount[None], len(result.local_poses), 0))
+            pa, ca = ref.at(kstamp[la], result.stamps, local)
+            pb, cb = ref.at(kstamp[lb], result.stamps, local)
+            meas_s = se2.compose(se2.compose(se2.inverse(mount), meas), mount)  # base → sensor frame
+            out["loop_precision"] = M.loop_precision(meas_s, pa, pb, ca, cb)
+            out["loop_precision"]["reference"] = "trajectory solved from the relations, carried by the front end"
+    if ground_truth is not None:
+        tg, pg = read_tum(ground_truth) if not isinstance(ground_truth, tuple) else ground_truth
+        out["ate"] = M.ate(result.stamps, result.poses, tg, pg)
+        out["rpe"] = M.rpe(result.stamps, result.poses, tg, pg)
+        out["ate_frontend"] = M.ate(result.stamps, result.local_poses, tg, pg)
+        if len(meas):
+            ref = M.Reference(np.asarray(tg, dtype=float), np.asarray(pg, dtype=float), np.zeros(len(tg), int))
+            order = np.argsort(ref.t)
+            ref = M.Reference(ref.t[order], ref.poses[order], ref.comp)
+            pa, ca = ref.at(kstamp[la], max_diff=0.1)
+            pb, cb = ref.at(kstamp[lb], max_diff=0.1)
+            out["loop_precision_gt"] = M.loop_precision(meas, pa, pb, ca, cb)
+    return out
+
+
+def build_map(result: SlamResult, grid_cfg=None):
+    """The log-odds occupancy grid (mapping/grid.py) of the kept scans at their optimised poses."""
+    from mapping.grid import GridBuilder
+
+    if not result.scans:
+        raise KosmapError("the run kept no scans; call run_slam(..., keep_scans=True) to build a map")
+    b = GridBuilder(grid_cfg, mount=tuple(result.mount))
+    for pose, scan in zip(result.poses, result.scans):
+        b.add(pose, scan)
+    return b.to_occupancy()
+
+
+def _clean(o):
+    """JSON-safe: NaN/inf → None, numpy → Python."""
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return float(o) if np.isfinite(o) else None
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
+def summary(result: SlamResult) -> dict:
+    """Counts and timings of a run (what metrics.json holds besides the accuracy)."""
+    edges = result.graph.edges
+    return {"scans": int(len(result.stamps_ns)), "matched_scans": int(result.matched.sum()),
+            "keyframes": len(result.keyframes), "loops": len(result.loops),
+            "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "loop")},
+            "recoveries": int(result.recoveries), "duration_s": result.duration_s,
+            "seconds": dict(result.timings), "realtime_factor": result.realtime_factor,
+            "mount": result.mount.tolist(), "loop_search": result.loop_stats, "warnings": list(result.warnings)}
+
+
+def save_run(result: SlamResult, out: str | Path, cfg=None, metrics: dict | None = None, grid=None) -> dict[str, Path]:
+    """Write trajectory.tum (every scan, base_link), keyframes.tum, graph.g2o, metrics.json, map.png +
+    map.pgm/map.yaml (when a grid is given) and config.toml into `out`; returns the paths."""
+    import json
+    import os
+
+    from backend.trajio import write_tum
+    from mapping.config import write_config
+
+    d = Path(out)
+    d.mkdir(parents=True, exist_ok=True)
+    paths = {"trajectory": write_tum(d / "trajectory.tum", result.stamps, result.poses),
+             "keyframes": write_tum(d / "keyframes.tum", np.array([k.stamp_ns for k in result.keyframes]) * 1e-9,
+                                    result.graph.est),
+             "graph": result.graph.write_g2o(d / "graph.g2o")}
+    doc = {"run": summary(result), **(metrics or {})}
+    tmp = d / "metrics.json.partial"
+    tmp.write_text(json.dumps(_clean(doc), indent=2))
+    os.replace(tmp, d / "metrics.json")
+    paths["metrics"] = d / "metrics.json"
+    if grid is not None:
+        from mapping.mapio import grid_picture, write_map_server, write_png
+
+        paths["map_png"] = write_png(grid_picture(grid, result.poses), d / "map.png")
+        paths["map_yaml"] = write_map_server(grid, d / "map.yaml")
+    if cfg is not None:
+        paths["config"] = write_config(cfg, d / "config.toml")
+    return paths

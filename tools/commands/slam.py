@@ -1,0 +1,71 @@
+"""`kosmap slam LOG --out DIR`: SLAM over a log's laser scans (KOS scans later), scored when a reference is given."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from tools import options as O
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def slam(
+        log: Annotated[Path, typer.Argument(help="Log file: .mcap (ROS 2), .bag (ROS 1) or .clf (CARMEN).")],
+        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (trajectory, graph, map, metrics, config).")],
+        source: Annotated[str, typer.Option("--source", help="Scans to map from: laser, or kos (depth camera; not yet).")] = "laser",
+        relations: Annotated[Optional[Path], typer.Option("--relations", help="Kümmerle .relations file to score against.")] = None,
+        ground_truth: Annotated[Optional[Path], typer.Option("--ground-truth", help="TUM ground-truth trajectory to score against.")] = None,
+        no_map: Annotated[bool, typer.Option("--no-map", help="Skip the occupancy grid (map.png, map.pgm/yaml).")] = False,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
+        config: O.ConfigOpt = None, set_: O.SetOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
+    ) -> None:
+        """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
+        keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
+        from mapping.slam import build_map, evaluate, run_slam, save_run
+
+        cfg = O.make_config(config, set_, scan_topic=scan_topic, odom_topic=odom_topic)
+        if relations is not None and not relations.is_file():
+            from backend.metrics import MetricsError
+
+            raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
+        show = not quiet and sys.stderr.isatty()
+        if show:
+            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+            prog = Progress(TextColumn("slam"), BarColumn(), TextColumn("{task.fields[t]:.0f}/{task.total:.0f} s of log"),
+                            TimeRemainingColumn(), transient=True)
+            with prog:
+                task = prog.add_task("slam", total=1.0, t=0.0)
+
+                def tick(done: float, total: float) -> None:
+                    prog.update(task, total=max(total, 1e-9), completed=done, t=done)
+
+                result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map)
+        else:
+            result = run_slam(log, cfg, source, keep_scans=not no_map)
+        metrics = evaluate(result, relations, ground_truth)
+        grid = None if no_map else build_map(result, cfg.grid)
+        paths = save_run(result, out, cfg, metrics, grid)
+        if quiet:
+            return
+        t = result.timings
+        print(f"{len(result.stamps_ns)} scans, {len(result.keyframes)} keyframes, {len(result.loops)} loops; "
+              f"{t['total']:.1f} s for {result.duration_s:.0f} s of log ({result.realtime_factor:.0f}× real time)")
+        if "relations" in metrics:
+            m = metrics["relations"]
+            print(f"relations ({m['n']}): abs trans {m['abs_trans']['mean']:.4f} ± {m['abs_trans']['std']:.4f} m, "
+                  f"abs rot {m['abs_rot_deg']['mean']:.3f} ± {m['abs_rot_deg']['std']:.3f}°")
+        if "loop_precision" in metrics:
+            lp = metrics["loop_precision"]
+            print(f"loop precision: {lp['correct']}/{lp['checked']} = {lp['precision']:.3f} "
+                  f"(within {lp['trans_tol']} m and {lp['rot_tol_deg']}°)")
+        if "ate" in metrics:
+            a = metrics["ate"]
+            print(f"ATE: rmse {a['rmse']:.4f} m, max {a['max']:.4f} m ({a['n']} poses)")
+        for w in result.warnings:
+            print(f"warning: {w}", file=sys.stderr)
+        print(f"wrote {', '.join(p.name for p in paths.values())} to {out}")
