@@ -21,13 +21,12 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
+from frontend.camera import OPTICAL_ROTATION, mount_transform
 from frontend.records import CameraModel, Transform
 from tools.simulate.world import World
 
 EPS = 1e-9
-# REP 103: the optical frame (x right, y down, z forward) in camera_link (x forward, y left, z up)
-OPTICAL_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
-OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)
+OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)  # REP 103 optical frame in camera_link, as roll, pitch, yaw
 
 KINECT_V2_WIDTH, KINECT_V2_HEIGHT = 512, 424
 KINECT_V2_FOV_DEG = (70.6, 60.0)
@@ -37,13 +36,8 @@ KINECT_V2_FOV_DEG = (70.6, 60.0)
 
 def camera_mount(xyz=(0.1, 0.0, 1.0), rpy=(0.0, 0.0, 0.0), frame_id: str = "kinect2_ir_optical_frame") -> Transform:
     """base_link ← optical frame of a camera whose camera_link sits at `xyz` with roll, pitch, yaw `rpy`
-    (rad; pitch > 0 looks down), with the REP 103 optical rotation appended."""
-    from scipy.spatial.transform import Rotation
-
-    m = np.eye(4)
-    m[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix() @ OPTICAL_ROTATION
-    m[:3, 3] = xyz
-    return Transform.from_matrix("base_link", frame_id, m)
+    (rad; pitch > 0 looks down), with the REP 103 optical rotation appended (frontend.camera)."""
+    return mount_transform(xyz, rpy, "base_link", frame_id)
 
 
 def laser_mount(xyz=(0.15, 0.0, 0.35), rpy=(0.0, 0.0, 0.0), frame_id: str = "laser") -> Transform:

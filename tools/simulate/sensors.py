@@ -109,32 +109,21 @@ def _noise_kernel(z, cos_inc, sid, normal, raw, corner, sz, sa, min_r, max_r, p_
             u1 = np.float64(r >> np.uint64(40)) * inv24
             u2 = np.float64(r & np.uint64(0xFFFFFF)) * inv24
             sid_v = sid[v, u]
-            # flying pixel: blend with the 4-neighbour across the largest depth jump (mixed ToF returns)
-            thr = max(edge_abs, 0.03 * zz)
-            jump, other = 0.0, 0.0
-            for k in range(4):
-                if k == 0:
-                    if u + 1 >= W:
-                        continue
-                    zn = np.float64(z[v, u + 1])
-                elif k == 1:
-                    if u == 0:
-                        continue
-                    zn = np.float64(z[v, u - 1])
-                elif k == 2:
-                    if v + 1 >= H:
-                        continue
-                    zn = np.float64(z[v + 1, u])
-                else:
-                    if v == 0:
-                        continue
-                    zn = np.float64(z[v - 1, u])
-                if zn > 0.0:
-                    d = abs(zn - zz)
-                    if d > thr and d > jump:
-                        jump, other = d, zn
-            fly = jump > 0.0 and u2 < p_fly
+            # flying pixel: blend with the 4-neighbour across the largest depth jump (mixed ToF returns); the
+            # jump is found branch-free; border pixels get no flying-pixel test
+            zf = z[v, u]
+            jump = np.float32(0.0)
+            if 0 < v < H - 1 and 0 < u < W - 1:
+                n0, n1, n2, n3 = z[v, u + 1], z[v, u - 1], z[v + 1, u], z[v - 1, u]
+                jump = max(max(abs(n0 - zf) * (n0 > 0), abs(n1 - zf) * (n1 > 0)),
+                           max(abs(n2 - zf) * (n2 > 0), abs(n3 - zf) * (n3 > 0)))
+            fly = jump > max(edge_abs, 0.03 * zz) and u2 < p_fly
             if fly:
+                other = zz
+                for nb in (z[v, u + 1], z[v, u - 1], z[v + 1, u], z[v - 1, u]):
+                    if nb > 0 and abs(nb - zf) == jump:
+                        other = np.float64(nb)
+                        break
                 zz = zz + (u2 / p_fly) * (other - zz)
                 sid_v = flying_id
             c = min(max(np.float64(cos_inc[v, u]), 0.0), 1.0)
