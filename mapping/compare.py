@@ -12,7 +12,8 @@ maps are resampled, so maps of different resolutions and sizes compare cell area
   - wall cells: occupancy ≥ occupied_thresh and (walls = "surface") free space among the 8 neighbours;
   - precision(tol): fraction of A's wall cells with a B wall cell within tol (centre to centre); recall(tol):
     the same from B to A; F1 their harmonic mean;
-  - coverage(tol): fraction of B's wall cells within tol of any cell A observed (free or occupied);
+  - coverage(tol): fraction of B's wall cells within tol of any cell A observed (free or occupied), and
+    recall_observed(tol): the recall over those walls only (what A got right of what it saw);
   - distances A→B and B→A: mean and median distance from each wall cell to the other map's nearest one;
   - free space, over the cells both maps decide (free: occupancy < free_thresh, or a wall): agreement of
     the labels, IoU of the free cells, and the fraction of A's free cells that lie on B's walls.
@@ -362,9 +363,11 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
     for tol in cfg.tolerances:
         p = float(np.mean(a2b <= tol + eps))
         rc = float(np.mean(b2a <= tol + eps))
+        seen = dKnownA[wallB] <= tol + eps
         per_tol[f"{tol:.2f}"] = {"tolerance": tol, "precision": p, "recall": rc,
                                  "f1": 2 * p * rc / (p + rc) if p + rc > 0 else 0.0,
-                                 "coverage": float(np.mean(dKnownA[wallB] <= tol + eps))}
+                                 "coverage": float(np.mean(seen)),
+                                 "recall_observed": float(np.mean(b2a[seen] <= tol + eps)) if seen.any() else None}
     definite = (occA | freeA) & (occB | freeB)
     both_free = freeA & freeB & definite
     any_free = (freeA | freeB) & definite
@@ -417,10 +420,11 @@ def metrics_markdown(m: dict, title: str = "Map comparison") -> str:
         lines.append("Alignment: none (--no-align: the frames are taken to agree)")
     c = m["canvas"]
     lines += [f"Scored on a {c['width']}×{c['height']} canvas at {c['resolution']:.3f} m.", "",
-              "| tolerance | precision | recall | F1 | coverage |", "|---|---|---|---|---|"]
-    for t in m["tolerances"].values():
-        lines.append(f"| {t['tolerance']:.2f} m | {t['precision']:.3f} | {t['recall']:.3f} | {t['f1']:.3f} | {t['coverage']:.3f} |")
+              "| tolerance | precision | recall | F1 | coverage | recall of observed walls |", "|---|---|---|---|---|---|"]
     f = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
+    for t in m["tolerances"].values():
+        lines.append(f"| {t['tolerance']:.2f} m | {t['precision']:.3f} | {t['recall']:.3f} | {t['f1']:.3f} | "
+                     f"{t['coverage']:.3f} | {f(t['recall_observed'])} |")
     ab, ba, fr = m["distance_a_to_b"], m["distance_b_to_a"], m["free"]
     lines += ["", "| distance | mean | median |", "|---|---|---|",
               f"| A walls → nearest B wall | {f(ab['mean'])} m | {f(ab['median'])} m |",
