@@ -1,0 +1,270 @@
+"""`kosmap scan`: a log's depth frames → FSPF+ → multi-level KOS scans, fused with the laser, written out.
+
+Outputs (thesis §5.3, Fig. 5.13–5.20): an MCAP with sensor_msgs/LaserScan per level on /kinect_scan/<level>
+(plus the obstacle and fused scans, the laser and /tf_static, so Foxglove overlays them), the scan points as
+CSV (the thesis stored them in text files), top-view figures of laser and levels, stats and the config.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from collections import deque
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from frontend.camera import lookup_static
+from frontend.depthstream import DepthResolver
+from frontend.errors import TopicError
+from frontend.fspf import warmup
+from frontend.kos import FUSED, OBSTACLE, Bearings, KosConfig, bearings_for, camera_view, fuse_with_laser, in_view
+from frontend.kosframe import KosFrame, kos_frame, merge_cameras
+from frontend.logs import detect_topics, open_log
+from frontend.records import Scan, Transform, Transforms
+from mapping.config import Config, write_config
+
+KOS_PREFIX = "/kinect_scan/"
+
+
+class CameraSync:
+    """Groups frames of several cameras into time steps: each frame of the first topic, with every other
+    topic's frame nearest in time (within `tol_ns`)."""
+
+    def __init__(self, topics: list[str], tol_ns: int) -> None:
+        self.primary, self.others = topics[0], topics[1:]
+        self.tol = tol_ns
+        self.pending: deque[KosFrame] = deque()
+        self.recent: dict[str, deque[KosFrame]] = {t: deque() for t in self.others}
+
+    def push(self, f: KosFrame) -> list[list[KosFrame]]:
+        (self.pending if f.topic == self.primary else self.recent[f.topic]).append(f)
+        return self._ready(f.stamp_ns)
+
+    def flush(self) -> list[list[KosFrame]]:
+        return self._ready(None)
+
+    def _ready(self, now: int | None) -> list[list[KosFrame]]:
+        out = []
+        while self.pending and (now is None or not self.others or self.pending[0].stamp_ns + self.tol < now):
+            p = self.pending.popleft()
+            step = [p]
+            for t in self.others:
+                q = self.recent[t]
+                while q and q[0].stamp_ns < p.stamp_ns - self.tol:
+                    q.popleft()
+                near = [f for f in q if abs(f.stamp_ns - p.stamp_ns) <= self.tol]
+                if near:
+                    step.append(min(near, key=lambda f: abs(f.stamp_ns - p.stamp_ns)))
+            out.append(step)
+        return out
+
+
+@dataclass
+class KosStep:
+    """One time step: the merged KOS scans of every level (and the fused scan when a laser is near in time)."""
+
+    stamp_ns: int
+    scans: dict[str, Scan]
+    frames: list[KosFrame]
+    laser: Scan | None = None
+
+
+@dataclass
+class ScanRun:
+    """Everything `kos_steps` learned about the log besides the steps themselves."""
+
+    topics: dict = field(default_factory=dict)
+    bearings: Bearings | None = None
+    laser_mount: Transform | None = None
+    statics: list[Transforms] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+    total_frames: int = 0
+
+
+def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = None,
+              on_frame: Callable[[KosFrame], None] | None = None, keep_planes: Callable[[int], bool] | None = None,
+              ) -> Iterator[KosStep]:
+    """Stream the log once: FSPF+ → KOS per depth frame, cameras merged per step, fused with the nearest laser scan."""
+    log = open_log(log_path)
+    try:
+        info = log.info()
+        det = detect_topics(info.types(), cfg.topics)
+        if not det.depth:
+            raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
+        run.topics = det.as_dict()
+        run.total_frames = sum(info.count(t) for t in det.depth)
+        if limit is not None:
+            run.total_frames = min(run.total_frames, limit * len(det.depth))
+        resolver = DepthResolver(det, cfg.depth)
+        sync = CameraSync(det.depth, tol_ns=25_000_000)
+        cams: dict[str, tuple] = {}
+        lasers: deque[Scan] = deque(maxlen=16)
+        warmup()
+        done = 0
+
+        def finish(step_frames: list[KosFrame]) -> KosStep:
+            b = run.bearings
+            ranges = merge_cameras(step_frames)
+            seen = in_view(b, list(cams.values()))
+            names = cfg.kos.bands()
+            scans = {}
+            for k, (name, _, _) in enumerate(names):
+                r = ranges[k].copy()
+                r[~seen] = np.nan
+                scans[name] = Scan(step_frames[0].stamp_ns, r, b.angle_min, b.angle_increment, cfg.depth.min_depth,
+                                   cfg.depth.max_depth, "base_link", KOS_PREFIX + name)
+            laser = None
+            if lasers:
+                laser = min(lasers, key=lambda s: abs(s.stamp_ns - step_frames[0].stamp_ns))
+                if abs(laser.stamp_ns - step_frames[0].stamp_ns) > 100_000_000:
+                    laser = None
+            if laser is not None:
+                if run.laser_mount is None:
+                    run.laser_mount = lookup_static(resolver.statics, "base_link", laser.frame_id) or \
+                        Transform.identity("base_link", laser.frame_id)
+                scans[FUSED] = fuse_with_laser(laser, run.laser_mount, scans[OBSTACLE], KOS_PREFIX + FUSED)
+            return KosStep(step_frames[0].stamp_ns, scans, step_frames, laser)
+
+        wanted = det.wanted()
+        for rec in log.read(wanted):
+            if isinstance(rec, Scan) and rec.topic == det.scan:
+                lasers.append(rec)
+                continue
+            item = resolver.observe(rec)
+            if isinstance(rec, Transforms) and rec.static:
+                run.statics.append(rec)
+            if item is None:
+                continue
+            if limit is not None and done >= limit * len(det.depth):
+                break
+            if item.topic not in cams:
+                cams[item.topic] = (item.camera, item.mount)
+                if run.bearings is None:
+                    # the grid of bins is fixed by the first frame: one camera's view, or a full circle for several
+                    if len(det.depth) == 1:
+                        run.bearings = bearings_for([(item.camera, item.mount)], cfg.kos.angle_increment_deg)
+                    else:
+                        inc = cfg.kos.angle_increment_deg or math.degrees(
+                            (lambda v: (v[1] - v[0]) / (item.camera.width - 1))(camera_view(item.camera, item.mount)))
+                        run.bearings = bearings_for([(item.camera, item.mount)] * 2, inc)
+            keep = keep_planes(item.index) if keep_planes else False
+            f = kos_frame(item, cfg.fspf, cfg.depth, cfg.kos, run.bearings, keep_planes=keep)
+            done += 1
+            if on_frame:
+                on_frame(f)
+            for step in sync.push(f):
+                yield finish(step)
+        for step in sync.flush():
+            yield finish(step)
+        run.warnings.extend(log.warnings)
+    finally:
+        log.close()
+
+
+def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: list[str], t0_ns: int) -> None:
+    """Top view like the thesis's Fig. 5.13–5.20: the laser scan and the KOS of each level, overlaid."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 6), dpi=110)
+    if step.laser is not None:
+        p = step.laser.points()
+        if laser_mount is not None:
+            p = laser_mount.apply(np.column_stack((p, np.zeros(len(p)))))[:, :2]
+        ax.scatter(p[:, 0], p[:, 1], s=2, c="0.6", label="laser")
+    colours = plt.cm.viridis(np.linspace(0, 0.9, max(1, len(levels))))
+    for name, col in zip(levels, colours):
+        pts = step.scans[name].points()
+        ax.scatter(pts[:, 0], pts[:, 1], s=3, color=col, label=f"KOS {name}")
+    pts = step.scans[OBSTACLE].points()
+    ax.scatter(pts[:, 0], pts[:, 1], s=6, facecolors="none", edgecolors="r", linewidths=0.5, label="KOS obstacle")
+    ax.plot([0], [0], "k^", ms=8)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m, base_link)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"KOS levels and laser, t = {(step.stamp_ns - t0_ns) * 1e-9:.2f} s")
+    ax.legend(loc="upper right", fontsize=7, markerscale=3)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    tmp = path.with_name(path.name + ".partial.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,
+             progress: bool = True) -> dict:
+    """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from frontend.logs.writer import McapWriter
+
+    with open_log(log_path) as log:  # refuse a log without depth before writing anything
+        if not detect_topics(log.info().types(), cfg.topics).depth:
+            raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
+    out.mkdir(parents=True, exist_ok=True)
+    write_config(cfg, out / "config.toml")
+    run = ScanRun()
+    levels = [b[0] for b in cfg.kos.bands() if b[0] != OBSTACLE]
+    fspf_ms, kos_ms, fill = [], [], {name: [] for name in levels + [OBSTACLE]}
+    csv_tmp = out / "scan_points.csv.partial"
+    steps = 0
+    bar = Progress(TextColumn("KOS"), BarColumn(), MofNCompleteColumn(), TextColumn("{task.fields[rate]}"),
+                   TimeRemainingColumn(), disable=not progress, transient=True)
+    figure_steps: list[KosStep] = []
+    try:
+        with McapWriter(out / "kos.mcap") as writer, open(csv_tmp, "w", newline="") as fh, bar:
+            task = bar.add_task("frames", total=None, rate="")
+            w = csv.writer(fh)
+            w.writerow(["stamp", "scan", "bearing_rad", "range_m", "x_m", "y_m"])
+            statics_written = 0
+
+            def on_frame(f: KosFrame) -> None:
+                fspf_ms.append(f.fspf_ms)
+                kos_ms.append(f.kos_ms)
+                bar.update(task, total=run.total_frames, advance=1,
+                           rate=f"{1000.0 / max(1e-6, np.median(fspf_ms[-30:]) + np.median(kos_ms[-30:])):.0f} frames/s")
+
+            for step in kos_steps(log_path, cfg, run, limit=limit, on_frame=on_frame):
+                while statics_written < len(run.statics):
+                    writer.write(run.statics[statics_written], "/tf_static")
+                    statics_written += 1
+                steps += 1
+                if step.laser is not None:
+                    writer.write(step.laser)
+                for name, scan in step.scans.items():
+                    writer.write(scan)
+                    ok = np.isfinite(scan.ranges)
+                    if name in fill:
+                        fill[name].append(ok.mean())
+                    a, r = scan.angles[ok], scan.ranges[ok]
+                    t = f"{step.stamp_ns * 1e-9:.6f}"
+                    w.writerows((t, name, f"{ai:.5f}", f"{ri:.4f}", f"{ri * math.cos(ai):.4f}", f"{ri * math.sin(ai):.4f}")
+                                for ai, ri in zip(a, r))
+                n_steps = max(1, run.total_frames // max(1, len(run.topics["depth"])))
+                if figures and len(figure_steps) < figures and (steps - 1) % max(1, n_steps // figures) == 0:
+                    figure_steps.append(step)
+    except BaseException:  # interrupted or failed: leave no CSV that looks complete (the MCAP writer aborts itself)
+        csv_tmp.unlink(missing_ok=True)
+        raise
+    csv_tmp.replace(out / "scan_points.csv")
+    for i, step in enumerate(figure_steps):
+        _figure(out / f"kos_top_{i}.png", step, run.laser_mount, levels, figure_steps[0].stamp_ns)
+    summary = {
+        "log": str(log_path), "steps": steps, "topics": run.topics,
+        "bearings": {"angle_min": run.bearings.angle_min, "angle_increment": run.bearings.angle_increment,
+                     "bins": run.bearings.n} if run.bearings else None,
+        "levels": cfg.kos.levels, "band": cfg.kos.band, "source": cfg.kos.source,
+        "fspf_ms_median": float(np.median(fspf_ms)) if fspf_ms else None,
+        "kos_ms_median": float(np.median(kos_ms)) if kos_ms else None,
+        "filled_fraction": {k: float(np.mean(v)) if v else 0.0 for k, v in fill.items()},
+        "fused": run.laser_mount is not None, "warnings": run.warnings,
+    }
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    return summary
