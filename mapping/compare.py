@@ -49,7 +49,7 @@ class CompareConfig(StageConfig):
     candidates: int = param(4, lo=1, hi=20, doc="best rotations of the global search refined by ICP")
     max_points: int = param(20000, lo=100, doc="occupied cells of A used by ICP (a seeded random subset beyond this)")
     seed: int = param(0, lo=0, doc="seed of the ICP subset")
-    max_canvas_cells: int = param(40_000_000, lo=10_000, doc="the scoring canvas coarsens beyond this many cells")
+    max_canvas_cells: int = param(16_000_000, lo=10_000, doc="the scoring canvas coarsens (×1.5 steps) beyond this many cells (~100 B each)")
 
 
 class CompareError(KosmapError):
@@ -238,6 +238,9 @@ def align(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None) 
     pa, pb = occupied_points(a, cfg), occupied_points(b, cfg)
     if len(pa) < 3 or len(pb) < 3:
         raise CompareError(f"map {'A' if len(pa) < 3 else 'B'} has fewer than 3 wall cells: nothing to align")
+    if len(pb) > 200_000:  # a fine blueprint: thin B's walls to half the coarser cell, plenty for ICP
+        q = max(a.resolution, b.resolution) / 2
+        pb = pb[np.unique(np.floor(pb / q).astype(np.int64), axis=0, return_index=True)[1]]
     ext = max(np.ptp(pb, axis=0).max(), np.ptp(pa, axis=0).max())
     res_c = cfg.coarse_resolution or max(0.15, 2 * max(a.resolution, b.resolution), ext / 150.0)
     tree = cKDTree(pb)
