@@ -144,3 +144,10 @@ def test_thick_blueprint_walls_count_by_their_faces():
     aligned = compare(grid, plan).metrics  # and the alignment is not pulled into the thick walls
     assert np.hypot(aligned["alignment"]["x"], aligned["alignment"]["y"]) < 0.03
     assert abs(aligned["alignment"]["yaw_deg"]) < 0.3
+
+
+def test_canvas_coarsens_when_too_large_and_still_scores():
+    a = wall_grid(WORLD, 0.05)
+    m = compare(a, a, CompareConfig(align=False, max_canvas_cells=10_000)).metrics
+    assert m["canvas"]["width"] * m["canvas"]["height"] <= 10_000 and m["canvas"]["resolution"] > 0.1
+    assert m["tolerances"]["0.20"]["f1"] > 0.99
