@@ -53,6 +53,12 @@ class FspfConfig(StageConfig):
     ransac_subset: int = param(128, lo=3, doc="FSPF+: hypotheses are scored on this many random window points")
     ransac_max_iter: int = param(100, lo=1, doc="FSPF+: at most this many RANSAC hypotheses per plane")
     planes_per_window: int = param(3, lo=1, doc="FSPF+: planes sought per window (1 = the thesis; more keeps corners)")
+    bend_max: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers bend by more than this many ε "
+                            "(a quadratic explaining > 50 % of their residuals: strips of people, bins, pillars); 0 = off")
+    min_width: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers spread less than this many ε "
+                             "(std. dev.) across their second direction: a thin strip fits many planes; 0 = off")
+    tail_eps: float = param(2.0, lo=1.0, doc="FSPF+: a plane's points from ε to this many ε are its noise tail: "
+                            "outliers that seed no further plane in the window (1 = off)")
     fspf_max_points: int = param(2000, lo=1, doc="FSPF: stop after this many filtered points (n_max)")
     fspf_max_neighborhoods: int = param(20000, lo=1, doc="FSPF: stop after this many neighbourhoods (k_max)")
     fspf_local_samples: int = param(80, lo=3, doc="FSPF: local samples per neighbourhood (l; Biswas 50–100)")
@@ -261,11 +267,83 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
     return best >= 3, bx, by, bz, bd
 
 
+@njit(cache=True)
+def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
+    """True when the plane's inliers among the RANSAC subset bend: a quadratic in the in-plane coordinates
+    explains more than r2_max of their residual variance and rises by more than bend_max·ε over them.
+
+    Rejects the flat-looking strips RANSAC cuts from curved surfaces (a person, a bin, a pillar): within ε
+    a cylinder of radius r gives a strip of width ~2·√(2rε); noise on a true plane has no such structure.
+    """
+    # an orthonormal basis (e1, e2) of the plane
+    if abs(nx) < 0.9:
+        ax, ay, az = 1.0, 0.0, 0.0
+    else:
+        ax, ay, az = 0.0, 1.0, 0.0
+    e1x, e1y, e1z = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
+    e1n = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / e1n, e1y / e1n, e1z / e1n
+    e2x, e2y, e2z = ny * e1z - nz * e1y, nz * e1x - nx * e1z, nx * e1y - ny * e1x
+    A = np.zeros((6, 6))
+    b = np.zeros(6)
+    row = np.empty(6)
+    rs = np.empty(ns)
+    us = np.empty(ns)
+    vs = np.empty(ns)
+    m = 0
+    for s in range(ns):
+        x, y, z = np.float64(sx[s]), np.float64(sy[s]), np.float64(sz[s])
+        r = nx * x + ny * y + nz * z + d
+        if abs(r) < eps:
+            rs[m] = r
+            us[m] = e1x * x + e1y * y + e1z * z
+            vs[m] = e2x * x + e2y * y + e2z * z
+            m += 1
+    if m < 24:
+        return False
+    uc = np.mean(us[:m])
+    vc = np.mean(vs[:m])
+    scale = 0.0
+    for k in range(m):
+        us[k] -= uc
+        vs[k] -= vc
+        scale = max(scale, abs(us[k]), abs(vs[k]))
+    if scale <= 0:
+        return False
+    for k in range(m):
+        u, v = us[k] / scale, vs[k] / scale
+        row[0], row[1], row[2], row[3], row[4], row[5] = 1.0, u, v, u * u, v * v, u * v
+        for i in range(6):
+            b[i] += row[i] * rs[k]
+            for j in range(6):
+                A[i, j] += row[i] * row[j]
+    for i in range(6):
+        A[i, i] += 1e-9
+    coef = np.linalg.solve(A, b)
+    rm = np.mean(rs[:m])
+    tot = 0.0
+    res = 0.0
+    qmin = 1e30
+    qmax = -1e30
+    for k in range(m):
+        u, v = us[k] / scale, vs[k] / scale
+        q = coef[0] + coef[1] * u + coef[2] * v + coef[3] * u * u + coef[4] * v * v + coef[5] * u * v
+        # the bend: the quadratic part only (the linear part is a tilt of the plane)
+        qb = coef[3] * u * u + coef[4] * v * v + coef[5] * u * v
+        qmin = min(qmin, qb)
+        qmax = max(qmax, qb)
+        tot += (rs[k] - rm) ** 2
+        res += (rs[k] - q) ** 2
+    if tot <= 0:
+        return False
+    return 1.0 - res / tot > r2_max and qmax - qmin > bend_max * eps
+
+
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
 
 @njit(cache=True)
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
-                  per_window, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
+                  per_window, bend_max, min_width, tail_eps, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
                   out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
     H, W = depth.shape
     npx = H * W
@@ -296,12 +374,19 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
     sx = np.empty(subset, np.float32)
     sy = np.empty(subset, np.float32)
     sz = np.empty(subset, np.float32)
+    bx = np.empty(512, np.float32)
+    by = np.empty(512, np.float32)
+    bz = np.empty(512, np.float32)
     n_out = 0
     n_pl = 0
     n_drop = 0
     n_outl = 0
     n_win = 0
     n_vis = 0
+    n_bent = 0
+    n_thin = 0
+    thin2 = (min_width * eps) ** 2
+    tail = max(tail_eps, 1.0) * eps
     while remaining > stop and m > 0:
         # p0: a random eligible, unconsumed pixel (consumed candidates are removed lazily)
         i = _randint(state, m)
@@ -373,6 +458,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             cnt, nx, ny, nz, d = _inlier_fit_nb(sx, sy, sz, min(na, subset), nx, ny, nz, d, eps)
             if cnt < 3:
                 break
+
             if d < 0:  # rectify: the normal faces the camera
                 nx, ny, nz, d = -nx, -ny, -nz, -d
             cls = _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h)
@@ -380,11 +466,16 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             # one pass: inliers of the refitted plane go out, the rest are compacted to the front
             keep = 0
             n_in = 0
+            n_tail = 0
             start = n_out
             m0 = m1 = m2 = m3 = m4 = m5 = m6 = m7 = m8 = 0.0
             for a in range(na):
                 x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
-                if abs(nx * x + ny * y + nz * z + d) < eps:
+                e = abs(nx * x + ny * y + nz * z + d)
+                if e >= eps and e < tail:  # the plane's noise tail: an outlier, but no seed for another plane
+                    n_tail += 1
+                    continue
+                if e < eps:
                     n_in += 1
                     if not dropped:
                         out_pix[n_out, 0] = wr[a]
@@ -411,6 +502,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
                     wz[keep] = wz[a]
                     keep += 1
             na = keep
+            n_outl += n_tail
             if n_in <= n_min:  # too few inliers (thesis: nMin): they are outliers
                 n_out = start
                 n_outl += n_in
@@ -418,7 +510,23 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             if dropped:
                 n_drop += n_in
                 continue
-            # the plane refitted from all its inliers' moments, rectified again
+            # a strip of a curved surface (a person, a pillar) bends: its points become outliers, the rest
+            # of the window may still hold a plane. Tested on ≤ 512 of the inliers, evenly strided.
+            if bend_max > 0:
+                step = max(1, n_in // 512)
+                nb = 0
+                for a in range(start, n_out, step):
+                    if nb == 512:
+                        break
+                    bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+                    nb += 1
+                if _curved_nb(bx, by, bz, nb, nx, ny, nz, d, eps, 0.5, bend_max):
+                    n_out = start
+                    n_bent += 1
+                    n_outl += n_in
+                    continue
+            # the plane refitted from all its inliers' moments, rectified again; its inliers must spread
+            # in two directions (middle eigenvalue), else the plane through a thin strip is arbitrary
             inv = 1.0 / n_in
             mx, my, mz = m0 * inv, m1 * inv, m2 * inv
             C = np.empty((3, 3))
@@ -428,7 +536,12 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             C[1, 1] = m6 * inv - my * my
             C[1, 2] = C[2, 1] = m7 * inv - my * mz
             C[2, 2] = m8 * inv - mz * mz
-            _, v = np.linalg.eigh(C)
+            ev, v = np.linalg.eigh(C)
+            if ev[1] < thin2:  # a strip no wider than the inlier band: its plane is not determined
+                n_out = start
+                n_outl += n_in
+                n_thin += 1
+                continue
             fx_, fy_, fz_ = v[0, 0], v[1, 0], v[2, 0]
             fd = -(fx_ * mx + fy_ * my + fz_ * mz)
             if fd < 0:
@@ -458,6 +571,8 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
     stats[5] = remaining
     stats[6] = n_win
     stats[7] = n_vis
+    stats[8] = n_bent
+    stats[9] = n_thin
     return n_out, n_pl
 
 
@@ -825,15 +940,17 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
     pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
     pl_mom = np.empty((p_cap, 9))
-    stats = np.zeros(8, np.int64)
+    stats = np.zeros(10, np.int64)
     n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
                          cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
-                         cfg.ransac_max_iter, cfg.planes_per_window, *classes_of.args(),
+                         cfg.ransac_max_iter, cfg.planes_per_window, cfg.bend_max, cfg.min_width, cfg.tail_eps,
+                         *classes_of.args(),
                          _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
                          pl_mom, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats[:6])), (H, W), "fspf+")
     planes.stats.windows, planes.stats.visited = int(stats[6]), int(stats[7])
+    planes.stats.bent, planes.stats.thin = int(stats[8]), int(stats[9])
     s1, s2 = moments_from_sums(pl_mom[:p])
     return _finish(planes, cfg, classes_of, t0, (planes.counts.astype(np.float64), s1, s2))
 

@@ -40,6 +40,8 @@ class FrameStats:
     elapsed_ms: float = 0.0
     windows: int = 0  # FSPF+ search windows (FSPF: neighbourhoods), for profiling
     visited: int = 0  # pixels inside those windows, consumed or not
+    bent: int = 0  # FSPF+ planes rejected as strips of curved surfaces
+    thin: int = 0  # FSPF+ planes rejected as too thin to define a plane
 
     def _pct(self, n: int) -> float:
         return 100.0 * n / self.pixels if self.pixels else 0.0
