@@ -477,9 +477,10 @@ def test_log_reads_with_rosbags(room_log):
 
 
 def test_cli_writes_log_blueprint_and_settings(capsys, tmp_path):
-    out, bp = tmp_path / "r.mcap", tmp_path / "bp.yaml"
+    out, bp, toml = tmp_path / "r.mcap", tmp_path / "bp.yaml", tmp_path / "sim.toml"
+    toml.write_text("[simulate]\ndepth_rate = 10.0\nodom_rate = 20\n")
     code = main(["simulate", "room", "--out", str(out), "--duration", "0.3", "--seed", "2", "--no-laser",
-                 "--camera-pitch", "10", "--blueprint", str(bp), "-q"])
+                 "--camera-pitch", "10", "--blueprint", str(bp), "--config", str(toml), "--set", "odom_rate=25", "-q"])
     assert code == 0, capsys.readouterr().err
     assert out.is_file() and bp.is_file() and bp.with_suffix(".png").is_file()
     side = out.with_suffix(".sim.yaml")
@@ -487,6 +488,9 @@ def test_cli_writes_log_blueprint_and_settings(capsys, tmp_path):
 
     doc = yaml.safe_load(side.read_text())
     assert doc["config"]["camera_rpy_deg"] == [0.0, 10.0, 0.0] and doc["config"]["laser"] is False
+    assert doc["config"]["depth_rate"] == 10.0 and doc["config"]["odom_rate"] == 25.0  # --set beats the file
     with open_log(out) as log:
-        assert "/scan" not in log.info().types()
+        info = log.info()
+        assert "/scan" not in info.types()
+        assert info.count("/kinect2/sd/image_depth_rect") == 3 and info.count("/odom") == 8
     assert not list(tmp_path.glob("*.partial"))

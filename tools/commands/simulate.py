@@ -71,7 +71,7 @@ def register(app: typer.Typer) -> None:
         camera_pitch: Annotated[Optional[float], typer.Option("--camera-pitch", help="Front camera pitch (deg, > 0 looks down).")] = None,
         blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Also export the floor plan as map_server PNG + YAML (give the .yaml).")] = None,
         resolution: Annotated[float, typer.Option("--resolution", help="Blueprint cell size (m).")] = 0.05,
-        config: Annotated[Optional[Path], typer.Option("--config", "-c", help="TOML file with a [simulate] section.")] = None,
+        config: Annotated[Optional[Path], typer.Option("--config", "-c", help="TOML file with a 'simulate' section (its keys as for --set).")] = None,
         set_: Annotated[Optional[list[str]], typer.Option("--set", "-s", help="Override a simulator setting: key=value (repeatable).")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
     ) -> None:
@@ -119,7 +119,7 @@ def register(app: typer.Typer) -> None:
         if not quiet:
             print(f"log: {out} ({summary['bytes'] / 1e6:.1f} MB), world {summary['world']}, seed {summary['seed']}")
             print(f"  {summary['duration_s']:.1f} s simulated ({summary['distance_m']:.1f} m driven) in "
-                  f"{summary['wall_s']:.1f} s: {summary['real_time_factor']:.2f}× real time")
+                  f"{summary['wall_s']:.1f} s ({summary['cpu_s']:.1f} s CPU): {summary['real_time_factor']:.2f}× real time")
             print("  " + ", ".join(f"{t} {n}" for t, n in summary["messages"].items()))
             print(f"  odometry drift at the end: {summary['odom_drift_m']:.3f} m, {summary['odom_drift_deg']:.2f}°")
             print(f"  settings and summary: {side}")
