@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cached_property
 from importlib import resources
 from pathlib import Path
 
@@ -257,7 +256,7 @@ class World:
     def walls(self) -> list[Solid]:
         return [s for s in self.solids if s.kind == "wall"]
 
-    @cached_property
+    @property
     def bounds(self) -> tuple[float, float, float, float]:
         """(xmin, ymin, xmax, ymax) of the walls (of all solids when there are no walls)."""
         pts = [s.polygon for s in (self.walls or self.solids) if s.polygon is not None]
