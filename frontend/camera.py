@@ -186,8 +186,9 @@ def gravity_up(mount: Transform | None) -> np.ndarray:
     """The world's up direction in the camera optical frame; a level camera (y down) without a mount."""
     if mount is None:
         return np.array([0.0, -1.0, 0.0])
-    R = Rotation.from_quat(mount.rotation).as_matrix()  # base ← optical
-    return R.T @ np.array([0.0, 0.0, 1.0])
+    x, y, z, w = np.asarray(mount.rotation, float) / np.linalg.norm(mount.rotation)
+    # the last row of the rotation matrix base ← optical (unit quaternion x, y, z, w) is up in the optical frame
+    return np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])
 
 
 def camera_axes(mount: Transform | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

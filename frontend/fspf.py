@@ -348,15 +348,15 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
     H, W = depth.shape
     npx = H * W
     flat = depth.ravel()
-    st = np.zeros(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 consumed
+    st = np.empty(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 consumed
     cand = np.empty(npx, np.int32)
     m = 0
-    for i in range(npx):  # depthConstraints (thesis Alg. 4); NaN compares false
+    for i in range(npx):  # depthConstraints (thesis Alg. 4); NaN compares false. Branch-free.
         z = flat[i]
-        if z > min_d and z <= max_d:
-            st[i] = 1
-            cand[m] = i
-            m += 1
+        ok = (z > min_d) & (z <= max_d)
+        st[i] = ok
+        cand[m] = i
+        m += ok
     n_elig = m
     remaining = n_elig
     stop = (1.0 - frac) * n_elig
@@ -797,71 +797,86 @@ def _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
     return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf+")
 
 
-def _fspf_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
+def _fspf_np(depth, cam, cfg, dcfg, classes_of, drop, rng, batch: int = 256):
+    """FSPF in numpy: neighbourhoods are drawn and tested a batch at a time; the accepted ones are then taken
+    in order (they alone change the state), up to n_max points."""
     H, W = depth.shape
     fx, fy, cx, cy = cam.fx, cam.fy, cam.cx, cam.cy
     elig = depth_constraints(depth, dcfg.min_depth, dcfg.max_depth)
     st = elig.astype(np.uint8).reshape(-1)  # 0 ineligible, 1 eligible, 2 examined, 3 plane point, 4 dropped
+    zf = depth.reshape(-1).astype(np.float64)
     l, eta, half = cfg.fspf_local_samples, cfg.fspf_window_px, cfg.fspf_window_px // 2
     need = int(np.ceil(cfg.fspf_min_inlier_fraction * l - 1e-9))
     pix, pts, plane, normals, offsets, classes, counts = [], [], [], [], [], [], []
     n_out = n_drop = 0
-    for _ in range(cfg.fspf_max_neighborhoods):
-        if n_out + n_drop >= cfg.fspf_max_points:
-            break
-        r = rng.integers(0, H)
-        c = rng.integers(0, W)
-        rs = np.array([r, r + rng.integers(0, eta + 1) - half, r + rng.integers(0, eta + 1) - half])
-        cs = np.array([c, c + rng.integers(0, eta + 1) - half, c + rng.integers(0, eta + 1) - half])
-        if (rs < 0).any() or (rs >= H).any() or (cs < 0).any() or (cs >= W).any():
-            continue
+    done = 0
+    while done < cfg.fspf_max_neighborhoods and n_out + n_drop < cfg.fspf_max_points:
+        B = min(batch, cfg.fspf_max_neighborhoods - done)
+        done += B
+        rs = np.empty((B, 3), np.int64)
+        cs = np.empty((B, 3), np.int64)
+        rs[:, 0], cs[:, 0] = rng.integers(0, H, B), rng.integers(0, W, B)
+        rs[:, 1:] = rs[:, :1] + rng.integers(0, eta + 1, (B, 2)) - half
+        cs[:, 1:] = cs[:, :1] + rng.integers(0, eta + 1, (B, 2)) - half
+        ok = ((rs >= 0) & (rs < H) & (cs >= 0) & (cs < W)).all(axis=1)
+        rs, cs = rs[ok], cs[ok]
         j3 = rs * W + cs
-        if (st[j3] == 0).any():
+        ok = (st[j3] != 0).all(axis=1)
+        rs, cs, j3 = rs[ok], cs[ok], j3[ok]
+        if not len(rs):
             continue
-        z3 = depth.flat[j3].astype(np.float64)
-        p3 = np.column_stack(((cs - cx) * z3 / fx, (rs - cy) * z3 / fy, z3))
-        n = np.cross(p3[1] - p3[0], p3[2] - p3[0])
-        nn = np.linalg.norm(n)
-        if nn < 1e-12:
+        z3 = zf[j3]
+        p3 = np.stack(((cs - cx) * z3 / fx, (rs - cy) * z3 / fy, z3), axis=-1)  # K×3×3
+        n = np.cross(p3[:, 1] - p3[:, 0], p3[:, 2] - p3[:, 0])
+        nn = np.linalg.norm(n, axis=1)
+        ok = nn > 1e-12
+        if not ok.any():
             continue
-        n /= nn
-        d = -n @ p3[0]
-        zbar = z3.mean()
-        u = rng.random((l, 2)) - 0.5
-        lr = r + np.floor(u[:, 0] * fy * cfg.delta_m / zbar + 0.5).astype(np.int64)
-        lc = c + np.floor(u[:, 1] * fx * cfg.delta_m / zbar + 0.5).astype(np.int64)
+        rs, cs, p3, n, nn, z3 = rs[ok], cs[ok], p3[ok], n[ok], nn[ok], z3[ok]
+        n /= nn[:, None]
+        d = -np.einsum("ij,ij->i", n, p3[:, 0])
+        zbar = z3.mean(axis=1)
+        u = rng.random((len(rs), l, 2)) - 0.5
+        lr = rs[:, :1] + np.floor(u[..., 0] * (fy * cfg.delta_m / zbar)[:, None] + 0.5).astype(np.int64)
+        lc = cs[:, :1] + np.floor(u[..., 1] * (fx * cfg.delta_m / zbar)[:, None] + 0.5).astype(np.int64)
         inside = (lr >= 0) & (lr < H) & (lc >= 0) & (lc < W)
-        j = lr[inside] * W + lc[inside]
-        j = j[st[j] != 0]
-        z = depth.flat[j].astype(np.float64)
-        P = np.column_stack(((j % W - cx) * z / fx, (j // W - cy) * z / fy, z))
-        inl = np.abs(P @ n + d) < cfg.fspf_error_m
-        if inl.sum() < need:
-            bad = j[st[j] == 1]
-            st[bad] = 2
-            continue
-        j, P = j[inl], P[inl]
-        n, d = rectify(*fit_plane(P))
-        cls = int(classes_of(n[None], np.array([d]))[0])
-        j, first = np.unique(j, return_index=True)
-        P = P[first]
-        new = (st[j] == 1) | (st[j] == 2)
-        if drop[cls]:
-            st[j[new]] = 4
-            n_drop += int(new.sum())
-            continue
-        if not new.any():
-            continue
-        j, P = j[new], P[new]
-        st[j] = 3
-        plane.append(np.full(len(j), len(normals), np.int32))
-        pix.append(np.column_stack((j // W, j % W)).astype(np.int32))
-        pts.append(P.astype(np.float32))
-        normals.append(n)
-        offsets.append(float(d))
-        classes.append(cls)
-        counts.append(len(j))
-        n_out += len(j)
+        j = np.where(inside, lr * W + lc, 0)
+        valid = inside & (st[j] != 0)
+        z = zf[j]
+        P = np.stack(((j % W - cx) * z / fx, (j // W - cy) * z / fy, z), axis=-1)  # K×l×3
+        inl = valid & (np.abs(np.einsum("kij,kj->ki", P, n) + d[:, None]) < cfg.fspf_error_m)
+        accepted = inl.sum(axis=1) >= need
+        last = len(rs)
+        for k in np.flatnonzero(accepted):
+            if n_out + n_drop >= cfg.fspf_max_points:
+                last = k
+                break
+            jk, Pk = j[k][inl[k]], P[k][inl[k]]
+            nk, dk = rectify(*fit_plane(Pk))
+            cls = int(classes_of(nk[None], np.array([dk]))[0])
+            jk, first = np.unique(jk, return_index=True)
+            Pk = Pk[first]
+            new = (st[jk] == 1) | (st[jk] == 2)
+            if drop[cls]:
+                st[jk[new]] = 4
+                n_drop += int(new.sum())
+                continue
+            if not new.any():
+                continue
+            jk, Pk = jk[new], Pk[new]
+            st[jk] = 3
+            plane.append(np.full(len(jk), len(normals), np.int32))
+            pix.append(np.column_stack((jk // W, jk % W)).astype(np.int32))
+            pts.append(Pk.astype(np.float32))
+            normals.append(nk)
+            offsets.append(float(dk))
+            classes.append(cls)
+            counts.append(len(jk))
+            n_out += len(jk)
+        # the rejected neighbourhoods before the stop: their examined samples are outliers
+        rej = valid[:last] & ~accepted[:last, None]
+        jr = j[:last][rej]
+        st[jr[st[jr] == 1]] = 2
     stats = FrameStats(H * W, int((st == 0).sum()), n_out, n_drop, int((st == 2).sum()), int((st == 1).sum()))
     return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf")
 

@@ -102,11 +102,12 @@ class Planes:
     def select(self, keep_planes: np.ndarray) -> Planes:
         """The planes where `keep_planes` (bool P) holds, renumbered; stats unchanged."""
         keep_planes = np.asarray(keep_planes, bool)
-        new_index = np.cumsum(keep_planes) - 1
-        pt = keep_planes[self.plane] if len(self.plane) else np.zeros(0, bool)
-        return Planes(self.points[pt], new_index[self.plane[pt]].astype(np.int32), self.pixels[pt],
-                      self.normals[keep_planes], self.offsets[keep_planes], self.classes[keep_planes],
-                      self.counts[keep_planes], self.stats, self.shape, self.method)
+        new_index = (np.cumsum(keep_planes) - 1).astype(np.int32)
+        new_index[~keep_planes] = -1
+        n = int(self.counts[keep_planes].sum())
+        pts, plane, pix = _select_nb(self.points, self.plane, self.pixels, new_index, n)
+        return Planes(pts, plane, pix, self.normals[keep_planes], self.offsets[keep_planes],
+                      self.classes[keep_planes], self.counts[keep_planes], self.stats, self.shape, self.method)
 
     def depth_image(self) -> np.ndarray:
         """The processed depth image: each plane point's z (m) at its pixel, 0 elsewhere (float32 H×W)."""
@@ -127,6 +128,31 @@ class Planes:
         return Planes(np.zeros((0, 3), np.float32), np.zeros(0, np.int32), np.zeros((0, 2), np.int32),
                       np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int8), np.zeros(0, np.int64),
                       stats or FrameStats(), shape, method)
+
+
+@njit(cache=True)
+def _remap_nb(plane, new_index):
+    out = np.empty_like(plane)
+    for i in range(len(plane)):
+        out[i] = new_index[plane[i]]
+    return out
+
+
+@njit(cache=True)
+def _select_nb(points, plane, pixels, new_index, n):
+    """The points whose plane has new_index ≥ 0, renumbered, in one pass."""
+    pts = np.empty((n, 3), points.dtype)
+    pl = np.empty(n, np.int32)
+    pix = np.empty((n, 2), pixels.dtype)
+    k = 0
+    for i in range(len(plane)):
+        j = new_index[plane[i]]
+        if j >= 0 and k < n:
+            pts[k, 0], pts[k, 1], pts[k, 2] = points[i, 0], points[i, 1], points[i, 2]
+            pix[k, 0], pix[k, 1] = pixels[i, 0], pixels[i, 1]
+            pl[k] = j
+            k += 1
+    return pts[:k], pl[:k], pix[:k]
 
 
 # ---- fits -----------------------------------------------------------------------------------------------------------
@@ -348,17 +374,22 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
         order = np.argsort(-np.asarray(cnt), kind="stable")
         classes = np.zeros(G, np.int8)
         classes[group[order][::-1]] = planes.classes[order][::-1]  # the largest patch writes last
-    new_plane = group.astype(np.int32)[planes.plane]
     counts = np.bincount(group, weights=planes.counts, minlength=G).astype(np.int64)
-    merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes, counts,
-                    replace(planes.stats), planes.shape, planes.method)
-    if drop_classes:
-        keep = ~np.isin(classes, drop_classes)
-        if not keep.all():
-            lost = int(merged.counts[~keep].sum())
-            merged = merged.select(keep)
-            st = merged.stats
-            merged.stats = FrameStats(st.pixels, st.ineligible, st.inliers - lost, st.dropped + lost, st.outliers,
-                                      st.remaining, len(merged), st.elapsed_ms, st.windows, st.visited)
+    keep = ~np.isin(classes, drop_classes) if drop_classes else np.ones(G, bool)
+    stats = replace(planes.stats)
+    if keep.all():
+        new_plane = _remap_nb(planes.plane, group.astype(np.int32))
+        merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes, counts, stats,
+                        planes.shape, planes.method)
+    else:  # a merged plane turned out to be of a dropped class: renumber and drop in one pass
+        lost = int(counts[~keep].sum())
+        new_index = (np.cumsum(keep) - 1).astype(np.int32)
+        new_index[~keep] = -1
+        pts, pl, pix = _select_nb(planes.points, planes.plane, planes.pixels, new_index[group].astype(np.int32),
+                                  int(counts[keep].sum()))
+        stats.inliers -= lost
+        stats.dropped += lost
+        merged = Planes(pts, pl, pix, normals[keep], offsets[keep], classes[keep], counts[keep], stats,
+                        planes.shape, planes.method)
     merged.stats.planes = len(merged)
     return merged

@@ -35,7 +35,7 @@ TARGETS_MS = {"fspf+": 5.0, "fspf": 1.5}  # per 512×424 frame, thesis real-time
 def sim_frames(n: int):
     """(label, depth, camera, mount) of n simulated 512×424 frames."""
     try:
-        return _simulator_frames(n), "tools.simulate"
+        return _simulator_frames(n), "tools.simulate, bundled office world along its path (Kinect v2 noise)"
     except Exception:  # the simulator is not there (or its API differs): the analytic box room
         from tools.boxroom import BoxRoom, default_mount, kinect_v2, render_depth
 
@@ -50,9 +50,24 @@ def sim_frames(n: int):
 
 
 def _simulator_frames(n: int):
-    from tools.simulate.sim_frames import bench_frames  # provided by the simulator when it has landed
+    """Frames of the bundled office world along its path, Kinect v2 at 1 m, level, with sensor noise."""
+    from tools.simulate import World, camera_mount, kinect_v2_model, render_depth
 
-    return bench_frames(n)
+    world = World.load("office")
+    way = np.asarray(world.path.waypoints, float)
+    seg = np.diff(way, axis=0)
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    cum = np.concatenate(([0.0], np.cumsum(length)))
+    mount = camera_mount((0.1, 0.0, 1.0), (0.0, 0.0, 0.0))
+    model = kinect_v2_model(mount.child)
+    out = []
+    for i, s in enumerate(np.linspace(0.0, cum[-1], n, endpoint=False)):
+        k = min(int(np.searchsorted(cum, s, side="right")) - 1, len(seg) - 1)
+        xy = way[k] + seg[k] * (s - cum[k]) / max(length[k], 1e-9)
+        pose = (float(xy[0]), float(xy[1]), float(np.arctan2(seg[k, 1], seg[k, 0])))
+        depth, _ = render_depth(world, pose, mount, model, np.random.default_rng(i))
+        out.append((f"office {i}", depth, model, mount))
+    return out
 
 
 def real_frames(n: int):

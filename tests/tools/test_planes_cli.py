@@ -49,6 +49,7 @@ def pitched_log(tmp_path_factory):
     return path
 
 
+@pytest.mark.slow
 def test_planes_on_a_log_writes_everything(capsys, tmp_path, pitched_log):
     out = tmp_path / "out"
     code, stdout, err = run(capsys, "planes", pitched_log, "--out", out, "--save-depth", "--figures", "1")

@@ -52,8 +52,7 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
         log.close()
         raise LogError(f"{path} has no depth image topic (sensor_msgs/Image with 'depth' in its name); "
                        f"name one with --depth-topic")
-    total = sum(info.count(t) for t in det.depth)
-    total = len(range(0, total, every))
+    total = sum(len(range(0, info.count(t), every)) for t in det.depth)
     if limit is not None:
         total = min(total, limit)
     wanted = list(det.depth) + [i for i in det.info.values() if i] + ([det.tf_static] if det.tf_static else [])
@@ -62,7 +61,7 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
         infos: dict[str, CameraModel] = {}
         statics: list[Transforms] = []
         mounts: dict[str, Transform] = {}
-        seen = 0
+        seen: dict[str, int] = {}
         done = 0
         try:
             for rec in log.read(wanted):
@@ -72,8 +71,8 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
                 elif isinstance(rec, CameraModel):
                     infos[rec.topic] = rec
                 elif isinstance(rec, DepthFrame):
-                    k = seen
-                    seen += 1
+                    k = seen.get(rec.topic, 0)  # every Nth frame of each camera
+                    seen[rec.topic] = k + 1
                     if k % every:
                         continue
                     if limit is not None and done >= limit:
