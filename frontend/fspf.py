@@ -21,6 +21,7 @@ at n_max filtered points or k_max neighbourhoods. Its normal is refitted by leas
 
 from __future__ import annotations
 
+import threading
 import time
 from dataclasses import dataclass
 
@@ -315,10 +316,12 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
         row[0], row[1], row[2], row[3], row[4], row[5] = 1.0, u, v, u * u, v * v, u * v
         for i in range(6):
             b[i] += row[i] * rs[k]
-            for j in range(6):
+            for j in range(i, 6):
                 A[i, j] += row[i] * row[j]
     for i in range(6):
         A[i, i] += 1e-9
+        for j in range(i):
+            A[i, j] = A[j, i]
     coef = np.linalg.solve(A, b)
     rm = np.mean(rs[:m])
     tot = 0.0
@@ -344,12 +347,12 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
 @njit(cache=True)
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
                   per_window, bend_max, min_width, tail_eps, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
+                  st, cand, wr, wc, wx, wy, wz,
                   out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
     H, W = depth.shape
     npx = H * W
     flat = depth.ravel()
-    st = np.empty(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 consumed
-    cand = np.empty(npx, np.int32)
+    # st: 0 ineligible, 1 eligible, 2 consumed; st, cand, wr … wz are reused buffers of ≥ npx entries
     m = 0
     for i in range(npx):  # depthConstraints (thesis Alg. 4); NaN compares false. Branch-free.
         z = flat[i]
@@ -366,17 +369,12 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
         tx[c] = (c - cx) / fx
     for r in range(H):
         ty[r] = (r - cy) / fy
-    wr = np.empty(npx, np.int32)
-    wc = np.empty(npx, np.int32)
-    wx = np.empty(npx, np.float32)
-    wy = np.empty(npx, np.float32)
-    wz = np.empty(npx, np.float32)
     sx = np.empty(subset, np.float32)
     sy = np.empty(subset, np.float32)
     sz = np.empty(subset, np.float32)
-    bx = np.empty(512, np.float32)
-    by = np.empty(512, np.float32)
-    bz = np.empty(512, np.float32)
+    bx = np.empty(256, np.float32)
+    by = np.empty(256, np.float32)
+    bz = np.empty(256, np.float32)
     n_out = 0
     n_pl = 0
     n_drop = 0
@@ -387,6 +385,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
     n_thin = 0
     thin2 = (min_width * eps) ** 2
     tail = max(tail_eps, 1.0) * eps
+    bend_rms2 = (0.2 * eps) ** 2  # residual RMS below ε/5: flat enough, no bend test
     while remaining > stop and m > 0:
         # p0: a random eligible, unconsumed pixel (consumed candidates are removed lazily)
         i = _randint(state, m)
@@ -510,21 +509,6 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             if dropped:
                 n_drop += n_in
                 continue
-            # a strip of a curved surface (a person, a pillar) bends: its points become outliers, the rest
-            # of the window may still hold a plane. Tested on ≤ 512 of the inliers, evenly strided.
-            if bend_max > 0:
-                step = max(1, n_in // 512)
-                nb = 0
-                for a in range(start, n_out, step):
-                    if nb == 512:
-                        break
-                    bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
-                    nb += 1
-                if _curved_nb(bx, by, bz, nb, nx, ny, nz, d, eps, 0.5, bend_max):
-                    n_out = start
-                    n_bent += 1
-                    n_outl += n_in
-                    continue
             # the plane refitted from all its inliers' moments, rectified again; its inliers must spread
             # in two directions (middle eigenvalue), else the plane through a thin strip is arbitrary
             inv = 1.0 / n_in
@@ -546,6 +530,22 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             fd = -(fx_ * mx + fy_ * my + fz_ * mz)
             if fd < 0:
                 fx_, fy_, fz_, fd = -fx_, -fy_, -fz_, -fd
+            # a strip of a curved surface (a person, a pillar) bends: its points become outliers, the rest
+            # of the window may still hold a plane. Only planes whose residual spread is not far below ε
+            # are tested, on ≤ 256 of their inliers, evenly strided.
+            if bend_max > 0 and ev[0] > bend_rms2:
+                step = max(1, n_in // 256)
+                nb = 0
+                for a in range(start, n_out, step):
+                    if nb == 256:
+                        break
+                    bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+                    nb += 1
+                if _curved_nb(bx, by, bz, nb, fx_, fy_, fz_, fd, eps, 0.5, bend_max):
+                    n_out = start
+                    n_bent += 1
+                    n_outl += n_in
+                    continue
             pl_n[n_pl, 0] = fx_
             pl_n[n_pl, 1] = fy_
             pl_n[n_pl, 2] = fz_
@@ -918,10 +918,28 @@ class _Classes:
         return (self.up, self.fwd, self.left, c.slanted_min_deg, c.slanted_max_deg, self.cam_h, c.ground_max_height)
 
 
+_WORK = threading.local()
+
+
+def _workspace(npx: int, p_cap: int) -> dict:
+    """Buffers the FSPF+ kernel reuses from frame to frame (per thread): fresh memory costs a page fault per
+    4 KiB on first touch, which on a virtual machine was a third of a frame's time."""
+    ws = getattr(_WORK, "ws", None)
+    if ws is None or ws["npx"] < npx or ws["p_cap"] < p_cap:
+        ws = {"npx": npx, "p_cap": p_cap, "st": np.empty(npx, np.uint8), "cand": np.empty(npx, np.int32),
+              "wr": np.empty(npx, np.int32), "wc": np.empty(npx, np.int32), "wx": np.empty(npx, np.float32),
+              "wy": np.empty(npx, np.float32), "wz": np.empty(npx, np.float32),
+              "out_pix": np.empty((npx, 2), np.int32), "out_pts": np.empty((npx, 3), np.float32),
+              "out_plane": np.empty(npx, np.int32), "pl_n": np.empty((p_cap, 3)), "pl_d": np.empty(p_cap),
+              "pl_cls": np.empty(p_cap, np.int8), "pl_cnt": np.empty(p_cap, np.int64), "pl_mom": np.empty((p_cap, 9))}
+        _WORK.ws = ws
+    return ws
+
+
 def _finish(planes: Planes, cfg: FspfConfig, classes_of: _Classes, t0: float, moments=None) -> Planes:
     if cfg.merge and len(planes) > 1:
         drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
-        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, classes_of, drop, moments)
+        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, classes_of, drop, moments, inplace=True)
     planes.stats.planes = len(planes)
     planes.stats.elapsed_ms = (time.perf_counter() - t0) * 1e3
     return planes
@@ -947,21 +965,16 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
         planes = _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
         return _finish(planes, cfg, classes_of, t0)
     H, W = depth.shape
-    n_cap = H * W
-    p_cap = n_cap // (cfg.n_min + 1) + 1
-    out_pix = np.empty((n_cap, 2), np.int32)
-    out_pts = np.empty((n_cap, 3), np.float32)
-    out_plane = np.empty(n_cap, np.int32)
-    pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
-    pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
-    pl_mom = np.empty((p_cap, 9))
+    ws = _workspace(H * W, H * W // (cfg.n_min + 1) + 1)
+    out_pix, out_pts, out_plane = ws["out_pix"], ws["out_pts"], ws["out_plane"]
+    pl_n, pl_d, pl_cls, pl_cnt, pl_mom = ws["pl_n"], ws["pl_d"], ws["pl_cls"], ws["pl_cnt"], ws["pl_mom"]
     stats = np.zeros(10, np.int64)
     n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
                          cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
                          cfg.ransac_max_iter, cfg.planes_per_window, cfg.bend_max, cfg.min_width, cfg.tail_eps,
                          *classes_of.args(),
-                         _drop_mask(cfg), _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
-                         pl_mom, stats)
+                         _drop_mask(cfg), _rng_state(seed), ws["st"], ws["cand"], ws["wr"], ws["wc"], ws["wx"], ws["wy"],
+                         ws["wz"], out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats[:6])), (H, W), "fspf+")
     planes.stats.windows, planes.stats.visited = int(stats[6]), int(stats[7])

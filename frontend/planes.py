@@ -131,19 +131,22 @@ class Planes:
 
 
 @njit(cache=True)
-def _remap_nb(plane, new_index):
-    out = np.empty_like(plane)
+def _remap_nb(plane, new_index, inplace=False):
+    out = plane if inplace else np.empty_like(plane)
     for i in range(len(plane)):
         out[i] = new_index[plane[i]]
     return out
 
 
 @njit(cache=True)
-def _select_nb(points, plane, pixels, new_index, n):
-    """The points whose plane has new_index ≥ 0, renumbered, in one pass."""
-    pts = np.empty((n, 3), points.dtype)
-    pl = np.empty(n, np.int32)
-    pix = np.empty((n, 2), pixels.dtype)
+def _select_nb(points, plane, pixels, new_index, n, inplace=False):
+    """The points whose plane has new_index ≥ 0, renumbered, in one pass (in place: compacted to the front)."""
+    if inplace:
+        pts, pl, pix = points, plane, pixels
+    else:
+        pts = np.empty((n, 3), points.dtype)
+        pl = np.empty(n, np.int32)
+        pix = np.empty((n, 2), pixels.dtype)
     k = 0
     for i in range(len(plane)):
         j = new_index[plane[i]]
@@ -348,14 +351,15 @@ def _merge_nb(normals, offsets, cnt, s, ss, cos_max, offset_m):
 
 
 def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=None,
-                 drop_classes: tuple[int, ...] = (), moments: tuple | None = None) -> Planes:
+                 drop_classes: tuple[int, ...] = (), moments: tuple | None = None, inplace: bool = False) -> Planes:
     """Merge coplanar patches (thesis future work; Biswas's polygon merging): one refitted plane each.
 
     Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg
     and where each one's centroid lies within offset_m of the other's plane; the merged plane is refitted by
     least squares from the accumulated moments (Σp, Σppᵀ) and rectified. `classify_fn(normals, offsets)`
     gives the merged planes' classes (default: the class of their largest patch); planes whose class is in
-    drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the points.
+    drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the points;
+    `inplace` lets it reuse the input's point arrays (the input must not be used afterwards).
     """
     P = len(planes)
     if P <= 1:
@@ -378,7 +382,7 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
     keep = ~np.isin(classes, drop_classes) if drop_classes else np.ones(G, bool)
     stats = replace(planes.stats)
     if keep.all():
-        new_plane = _remap_nb(planes.plane, group.astype(np.int32))
+        new_plane = _remap_nb(planes.plane, group.astype(np.int32), inplace)
         merged = Planes(planes.points, new_plane, planes.pixels, normals, offsets, classes, counts, stats,
                         planes.shape, planes.method)
     else:  # a merged plane turned out to be of a dropped class: renumber and drop in one pass
@@ -386,7 +390,7 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
         new_index = (np.cumsum(keep) - 1).astype(np.int32)
         new_index[~keep] = -1
         pts, pl, pix = _select_nb(planes.points, planes.plane, planes.pixels, new_index[group].astype(np.int32),
-                                  int(counts[keep].sum()))
+                                  int(counts[keep].sum()), inplace)
         stats.inliers -= lost
         stats.dropped += lost
         merged = Planes(pts, pl, pix, normals[keep], offsets[keep], classes[keep], counts[keep], stats,
