@@ -19,6 +19,7 @@ from frontend.logs.topics import TopicsConfig
 from frontend.odometry import OdometryConfig
 from mapping.compare import CompareConfig
 from mapping.grid import GridConfig
+from mapping.pipeline_config import BuildConfig
 
 
 @dataclass
@@ -33,6 +34,7 @@ class Config:
     graph: GraphConfig = field(default_factory=GraphConfig)
     grid: GridConfig = field(default_factory=GridConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
+    build: BuildConfig = field(default_factory=BuildConfig)
 
 
 SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fields(Config)}  # type: ignore[misc]

@@ -18,14 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from frontend.camera import lookup_static
-from frontend.depthstream import DepthResolver
+from frontend.depthstream import DepthItem, DepthResolver
 from frontend.errors import TopicError
-from frontend.fspf import warmup
 from frontend.kos import FUSED, OBSTACLE, Bearings, KosConfig, bearings_for, camera_view, fuse_with_laser, in_view
-from frontend.kosframe import KosFrame, kos_frame, merge_cameras
+from frontend.kosframe import KosFrame, merge_cameras
 from frontend.logs import detect_topics, open_log
-from frontend.records import Scan, Transform, Transforms
+from frontend.records import DepthFrame, Scan, Transform, Transforms
 from mapping.config import Config, write_config
+from mapping.framepool import FramePool
 
 KOS_PREFIX = "/kinect_scan/"
 
@@ -85,81 +85,130 @@ class ScanRun:
     total_frames: int = 0
 
 
+class KosStream:
+    """FSPF+ → KOS per depth frame, cameras merged per time step, fused with the nearest laser scan: fed the
+    records of a log one by one (`feed`), it returns the finished steps; `flush` at the end returns the rest.
+
+    The per-frame work goes to a `FramePool` (serial or a process pool). What a step sees besides its frames
+    (the lasers and cameras read so far) is captured when its frame is read, so a step is the same however
+    far the pool runs behind the reader: serial and parallel runs give identical steps.
+    """
+
+    def __init__(self, det, cfg: Config, run: ScanRun, pool: FramePool, limit: int | None = None,
+                 on_frame: Callable[[KosFrame], None] | None = None,
+                 keep_planes: Callable[[DepthItem], bool] | None = None, min_period_ns: int = 0) -> None:
+        self.det, self.cfg, self.run, self.pool = det, cfg, run, pool
+        self.limit = None if limit is None else limit * len(det.depth)
+        self.on_frame, self.keep_planes = on_frame, keep_planes
+        self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
+        self._last: dict[str, int] = {}
+        self.resolver = DepthResolver(det, cfg.depth)
+        self.sync = CameraSync(det.depth, tol_ns=25_000_000)
+        self.cams: dict[str, tuple] = {}
+        self.lasers: deque[Scan] = deque(maxlen=16)
+        self.submitted = 0
+        self.stopped = False  # a frame beyond the limit arrived: the caller stops reading
+        run.topics = det.as_dict()
+
+    def _view(self) -> tuple:
+        return tuple(self.lasers), tuple(self.cams.values())
+
+    def feed(self, rec) -> list[KosStep]:
+        """Absorb one record (depth frames go to the pool); the steps finished by now."""
+        if isinstance(rec, Scan) and rec.topic == self.det.scan:
+            self.lasers.append(rec)
+            return []
+        if self.min_period and isinstance(rec, DepthFrame) and rec.topic in self.det.depth:
+            last = self._last.get(rec.topic)
+            if last is not None and rec.stamp_ns - last < self.min_period - 1_000_000:  # 1 ms slack for stamp jitter
+                self.resolver.count += 1  # the frame keeps its index (its seed) whether or not others are skipped
+                return []
+            self._last[rec.topic] = rec.stamp_ns
+        item = self.resolver.observe(rec)
+        if isinstance(rec, Transforms) and rec.static:
+            self.run.statics.append(rec)
+        if item is None:
+            return []
+        if self.limit is not None and self.submitted >= self.limit:
+            self.stopped = True
+            return []
+        run, cfg = self.run, self.cfg
+        if item.topic not in self.cams:
+            self.cams[item.topic] = (item.camera, item.mount)
+            if run.bearings is None:
+                # the grid of bins is fixed by the first frame: one camera's view, or a full circle for several
+                if len(self.det.depth) == 1:
+                    run.bearings = bearings_for([(item.camera, item.mount)], cfg.kos.angle_increment_deg)
+                else:
+                    inc = cfg.kos.angle_increment_deg or math.degrees(
+                        (lambda v: (v[1] - v[0]) / (item.camera.width - 1))(camera_view(item.camera, item.mount)))
+                    run.bearings = bearings_for([(item.camera, item.mount)] * 2, inc)
+        keep = self.keep_planes(item) if self.keep_planes else False
+        self.pool.submit(item, run.bearings, keep, self._view())
+        self.submitted += 1
+        return self._collect(False)
+
+    def flush(self) -> list[KosStep]:
+        """Wait for every frame in flight; the remaining steps."""
+        steps = self._collect(True)
+        view = self._view()
+        return steps + [self._finish(s, view) for s in self.sync.flush()]
+
+    def _collect(self, wait_all: bool) -> list[KosStep]:
+        steps = []
+        for f, view in self.pool.results(wait_all):
+            if self.on_frame:
+                self.on_frame(f)
+            steps += [self._finish(s, view) for s in self.sync.push(f)]
+        return steps
+
+    def _finish(self, step_frames: list[KosFrame], view: tuple) -> KosStep:
+        lasers, cams = view
+        run, cfg = self.run, self.cfg
+        b = run.bearings
+        ranges = merge_cameras(step_frames)
+        seen = in_view(b, list(cams))
+        scans = {}
+        for k, (name, _, _) in enumerate(cfg.kos.bands()):
+            r = ranges[k].copy()
+            r[~seen] = np.nan
+            scans[name] = Scan(step_frames[0].stamp_ns, r, b.angle_min, b.angle_increment, cfg.depth.min_depth,
+                               cfg.depth.max_depth, "base_link", KOS_PREFIX + name)
+        laser = None
+        if lasers:
+            laser = min(lasers, key=lambda s: abs(s.stamp_ns - step_frames[0].stamp_ns))
+            if abs(laser.stamp_ns - step_frames[0].stamp_ns) > 100_000_000:
+                laser = None
+        if laser is not None:
+            if run.laser_mount is None:
+                run.laser_mount = lookup_static(self.resolver.statics, "base_link", laser.frame_id) or \
+                    Transform.identity("base_link", laser.frame_id)
+            scans[FUSED] = fuse_with_laser(laser, run.laser_mount, scans[OBSTACLE], KOS_PREFIX + FUSED)
+        return KosStep(step_frames[0].stamp_ns, scans, step_frames, laser)
+
+
 def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = None,
               on_frame: Callable[[KosFrame], None] | None = None, keep_planes: Callable[[int], bool] | None = None,
-              ) -> Iterator[KosStep]:
-    """Stream the log once: FSPF+ → KOS per depth frame, cameras merged per step, fused with the nearest laser scan."""
+              workers: int = 0) -> Iterator[KosStep]:
+    """Stream the log once: FSPF+ → KOS per depth frame (in `workers` processes; 0 = here), cameras merged per
+    step, fused with the nearest laser scan."""
     log = open_log(log_path)
     try:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
-        run.topics = det.as_dict()
         run.total_frames = sum(info.count(t) for t in det.depth)
         if limit is not None:
             run.total_frames = min(run.total_frames, limit * len(det.depth))
-        resolver = DepthResolver(det, cfg.depth)
-        sync = CameraSync(det.depth, tol_ns=25_000_000)
-        cams: dict[str, tuple] = {}
-        lasers: deque[Scan] = deque(maxlen=16)
-        warmup()
-        done = 0
-
-        def finish(step_frames: list[KosFrame]) -> KosStep:
-            b = run.bearings
-            ranges = merge_cameras(step_frames)
-            seen = in_view(b, list(cams.values()))
-            names = cfg.kos.bands()
-            scans = {}
-            for k, (name, _, _) in enumerate(names):
-                r = ranges[k].copy()
-                r[~seen] = np.nan
-                scans[name] = Scan(step_frames[0].stamp_ns, r, b.angle_min, b.angle_increment, cfg.depth.min_depth,
-                                   cfg.depth.max_depth, "base_link", KOS_PREFIX + name)
-            laser = None
-            if lasers:
-                laser = min(lasers, key=lambda s: abs(s.stamp_ns - step_frames[0].stamp_ns))
-                if abs(laser.stamp_ns - step_frames[0].stamp_ns) > 100_000_000:
-                    laser = None
-            if laser is not None:
-                if run.laser_mount is None:
-                    run.laser_mount = lookup_static(resolver.statics, "base_link", laser.frame_id) or \
-                        Transform.identity("base_link", laser.frame_id)
-                scans[FUSED] = fuse_with_laser(laser, run.laser_mount, scans[OBSTACLE], KOS_PREFIX + FUSED)
-            return KosStep(step_frames[0].stamp_ns, scans, step_frames, laser)
-
-        wanted = det.wanted()
-        for rec in log.read(wanted):
-            if isinstance(rec, Scan) and rec.topic == det.scan:
-                lasers.append(rec)
-                continue
-            item = resolver.observe(rec)
-            if isinstance(rec, Transforms) and rec.static:
-                run.statics.append(rec)
-            if item is None:
-                continue
-            if limit is not None and done >= limit * len(det.depth):
-                break
-            if item.topic not in cams:
-                cams[item.topic] = (item.camera, item.mount)
-                if run.bearings is None:
-                    # the grid of bins is fixed by the first frame: one camera's view, or a full circle for several
-                    if len(det.depth) == 1:
-                        run.bearings = bearings_for([(item.camera, item.mount)], cfg.kos.angle_increment_deg)
-                    else:
-                        inc = cfg.kos.angle_increment_deg or math.degrees(
-                            (lambda v: (v[1] - v[0]) / (item.camera.width - 1))(camera_view(item.camera, item.mount)))
-                        run.bearings = bearings_for([(item.camera, item.mount)] * 2, inc)
-            keep = keep_planes(item.index) if keep_planes else False
-            f = kos_frame(item, cfg.fspf, cfg.depth, cfg.kos, run.bearings, keep_planes=keep)
-            done += 1
-            if on_frame:
-                on_frame(f)
-            for step in sync.push(f):
-                yield finish(step)
-        for step in sync.flush():
-            yield finish(step)
+        with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
+            keep = (lambda item: keep_planes(item.index)) if keep_planes else None
+            stream = KosStream(det, cfg, run, pool, limit, on_frame, keep)
+            for rec in log.read(det.wanted()):
+                yield from stream.feed(rec)
+                if stream.stopped:
+                    break
+            yield from stream.flush()
         run.warnings.extend(log.warnings)
     finally:
         log.close()
