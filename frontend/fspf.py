@@ -10,9 +10,16 @@ window W = fx·Δ/z̄, H = fy·Δ/z̄ around p0 (the projection of the world siz
 DESIGN.md), clipped at the border; its eligible pixels become 3D points and are consumed; RANSAC (ε, β;
 Alg. 5) finds the plane, refitted by least squares; the normal is rectified to face the camera and
 classified (Alg. 6); planes of dropped classes and planes with ≤ nMin inliers are discarded; the loop stops
-when fewer than (1 − analysed fraction) of the eligible pixels are unconsumed. Our one addition: after the
-first plane, RANSAC runs again on the window's outliers (`planes_per_window`, 1 = the thesis), so a window
-that straddles a wall and the floor keeps both.
+when fewer than (1 − analysed fraction) of the eligible pixels are unconsumed. RANSAC scores its hypotheses
+on a random subset of the window (STACK.md), refits the winner on the subset's inliers, and the final plane
+is the least-squares fit of all its inliers (their moments, accumulated in the one pass that writes them).
+
+Our additions, each with a switch in FspfConfig: after the first plane, RANSAC runs again on the window's
+remaining points (`planes_per_window`, 1 = the thesis), so a window that straddles a wall and the floor
+keeps both; a plane's noise tail (ε … `tail_eps`·ε) seeds no further plane; planes whose inliers are a
+thin strip (`min_width`) or bend like a strip of a cylinder (`bend_max`: people, bins, pillars) are
+rejected; coplanar planes are merged (frontend/planes.py). Simulated acceptance numbers: tests/frontend/
+test_fspf_sim.py; speed: tools/bench_planes.py.
 
 FSPF (Biswas & Veloso 2012, thesis Alg. 1): random d0, d1, d2 within η; a plane through their points; l
 local samples in the window of world size S around d0; accepted when the inlier fraction reaches α_in; stop
@@ -54,6 +61,8 @@ class FspfConfig(StageConfig):
     ransac_subset: int = param(128, lo=3, doc="FSPF+: hypotheses are scored on this many random window points")
     ransac_max_iter: int = param(100, lo=1, doc="FSPF+: at most this many RANSAC hypotheses per plane")
     planes_per_window: int = param(3, lo=1, doc="FSPF+: planes sought per window (1 = the thesis; more keeps corners)")
+    extra_min_fraction: float = param(0.1, lo=0.0, hi=1.0, doc="FSPF+: a further plane in a window is sought only "
+                                      "while at least this fraction of the window's points is left")
     bend_max: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers bend by more than this many ε "
                             "(a quadratic explaining > 50 % of their residuals: strips of people, bins, pillars); 0 = off")
     min_width: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers spread less than this many ε "
@@ -346,7 +355,7 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
 
 @njit(cache=True)
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
-                  per_window, bend_max, min_width, tail_eps, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
+                  per_window, extra_min, bend_max, min_width, tail_eps, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
                   st, cand, wr, wc, wx, wy, wz,
                   out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
     H, W = depth.shape
@@ -447,7 +456,9 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
             continue
         na = k
         for _pw in range(per_window):
-            if na <= n_min:
+            # a further plane only where enough of the window is left (a residue of < extra_min of it is
+            # mostly the edges and noise of the planes found)
+            if na <= n_min or (_pw > 0 and na < extra_min * k):
                 break
             ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz)
             if not ok:
@@ -971,7 +982,8 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     stats = np.zeros(10, np.int64)
     n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
                          cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
-                         cfg.ransac_max_iter, cfg.planes_per_window, cfg.bend_max, cfg.min_width, cfg.tail_eps,
+                         cfg.ransac_max_iter, cfg.planes_per_window, cfg.extra_min_fraction, cfg.bend_max, cfg.min_width,
+                         cfg.tail_eps,
                          *classes_of.args(),
                          _drop_mask(cfg), _rng_state(seed), ws["st"], ws["cand"], ws["wr"], ws["wc"], ws["wx"], ws["wy"],
                          ws["wz"], out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats)
