@@ -930,6 +930,7 @@ class _Classes:
 
 
 _WORK = threading.local()
+_DEFAULT_DEPTH = DepthConfig()
 
 
 def _workspace(npx: int, p_cap: int) -> dict:
@@ -968,7 +969,7 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     """
     t0 = time.perf_counter()
     cfg = cfg or FspfConfig()
-    dcfg = depth_cfg or DepthConfig()
+    dcfg = depth_cfg or _DEFAULT_DEPTH
     depth = _prepare(depth_m, cam)
     classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
@@ -1000,7 +1001,7 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     """FSPF (Biswas & Veloso; thesis Alg. 1), the baseline, with the same classes, dropping and merging."""
     t0 = time.perf_counter()
     cfg = cfg or FspfConfig()
-    dcfg = depth_cfg or DepthConfig()
+    dcfg = depth_cfg or _DEFAULT_DEPTH
     depth = _prepare(depth_m, cam)
     classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
