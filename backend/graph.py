@@ -40,6 +40,7 @@ class GraphConfig(StageConfig):
     loop_closure: bool = param(True, doc="search for and add loop closures")
     submap_nodes: int = param(40, lo=2, doc="nodes per loop-closure submap")
     loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps whose centre is within this distance", unit="m")
+    loop_max_candidates: int = param(8, lo=1, doc="search at most this many candidate submaps per node, nearest first")
     loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it")
     loop_search_every: int = param(1, lo=1, doc="search for loops at every n-th node")
     loop_linear_window: float = param(1.0, lo=0.0, doc="branch-and-bound half window in x and y", unit="m")
@@ -52,11 +53,11 @@ class GraphConfig(StageConfig):
     loop_sigma_xy: float = param(0.05, lo=0.0, lo_open=True, doc="loop factor σ", unit="m")
     loop_sigma_yaw_deg: float = param(1.0, lo=0.0, lo_open=True, doc="loop factor yaw σ", unit="deg")
     loop_search_range: float = param(15.0, lo=0.0, lo_open=True, doc="query points beyond this range are dropped", unit="m")
-    loop_point_voxel: float = param(0.05, lo=0.0, doc="query points thinned to one per cell of this size", unit="m")
+    loop_point_voxel: float = param(0.1, lo=0.0, doc="query points thinned to one per cell of this size", unit="m")
     loop_nearest_member: bool = param(True, doc="tie a loop to the submap node nearest the match (else to the first)")
     robust_kernel: str = param("cauchy", choices=("cauchy", "gnc", "huber", "none"), doc="kernel on loop factors")
     robust_scale: float = param(1.0, lo=0.0, lo_open=True, doc="kernel scale, in σ units")
-    optimize_every: int = param(10, lo=1, doc="ISAM2 update every n nodes")
+    optimize_every: int = param(25, lo=1, doc="ISAM2 update every n nodes")
 
 
 @dataclass
@@ -87,18 +88,27 @@ class PoseGraph:
         self.all_factors = gtsam.NonlinearFactorGraph()
         self.initial = gtsam.Values()
         self.edges: list[Edge] = []
-        self.est = np.zeros((0, 3))
+        self._est = np.zeros((1024, 3))  # current estimate of every node, grown by doubling
+        self._n = 0
         self.n_pending_nodes = 0
 
     # ---- building ---------------------------------------------------------------------------------------------------
     @property
     def n(self) -> int:
-        return len(self.est)
+        return self._n
+
+    @property
+    def est(self) -> np.ndarray:
+        """(n, 3) current estimate (a view: rows change in place as the graph is solved)."""
+        return self._est[: self._n]
 
     def add_node(self, guess: np.ndarray) -> int:
         """A new node with an initial guess; the first one is anchored by a tight prior. Returns its id."""
-        i = self.n
-        self.est = np.vstack((self.est, np.asarray(guess, dtype=float)[None]))
+        i = self._n
+        if i == len(self._est):
+            self._est = np.vstack((self._est, np.zeros_like(self._est)))
+        self._est[i] = guess
+        self._n += 1
         self.pending_values.insert(i, gtsam.Pose2(*map(float, guess)))
         self.initial.insert(i, gtsam.Pose2(*map(float, guess)))
         if i == 0:

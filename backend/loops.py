@@ -112,7 +112,9 @@ class LoopCloser:
             self._centres = np.array([[*sm.centre, 0.0] for sm in self.submaps])
             self._anchors = np.array([sm.anchor for sm in self.submaps])
         world = se2.compose(graph.est[self._anchors[:last]], self._centres[:last])
-        near = np.flatnonzero(np.hypot(world[:, 0] - p[0], world[:, 1] - p[1]) <= c.loop_search_radius)
+        dist = np.hypot(world[:, 0] - p[0], world[:, 1] - p[1])
+        near = np.flatnonzero(dist <= c.loop_search_radius)
+        near = near[np.argsort(dist[near])][: c.loop_max_candidates]
         return [self.submaps[i] for i in near]
 
     def search(self, node: int, graph: PoseGraph) -> list[LoopConstraint]:

@@ -133,3 +133,53 @@ class LikelihoodField:
 
         return float(mean_score(self.values, self.origin[0], self.origin[1], self.resolution,
                                 np.ascontiguousarray(points, dtype=np.float64), np.asarray(pose, dtype=np.float64)))
+
+
+@njit(cache=True)
+def _densify(pts, spacing, max_gap, rel):
+    n = pts.shape[0]
+    if n == 0:
+        return pts.copy()
+    out = np.empty((n * 4 + 16, 2))
+    m = 0
+    for i in range(n):
+        if m + 2 >= out.shape[0]:
+            bigger = np.empty((out.shape[0] * 2, 2))
+            bigger[:m] = out[:m]
+            out = bigger
+        out[m, 0] = pts[i, 0]
+        out[m, 1] = pts[i, 1]
+        m += 1
+        if i + 1 == n:
+            break
+        ax, ay = pts[i, 0], pts[i, 1]
+        bx, by = pts[i + 1, 0], pts[i + 1, 1]
+        gap = math.hypot(bx - ax, by - ay)
+        ra = math.hypot(ax, ay)
+        rb = math.hypot(bx, by)
+        # the bearing step between the two returns, seen from the sensor (≈ base_link origin)
+        dth = abs(math.atan2(ax * by - ay * bx, ax * bx + ay * by))
+        allowed = min(max_gap, max(spacing, rel * max(ra, rb) * dth))
+        if gap <= spacing or gap > allowed:
+            continue
+        k = int(gap / spacing)
+        if m + k + 2 >= out.shape[0]:
+            bigger = np.empty((out.shape[0] * 2 + k + 2, 2))
+            bigger[:m] = out[:m]
+            out = bigger
+        for j in range(1, k + 1):
+            a = j / (k + 1.0)
+            out[m, 0] = ax + a * (bx - ax)
+            out[m, 1] = ay + a * (by - ay)
+            m += 1
+    return out[:m]
+
+
+def densify(points: np.ndarray, spacing: float, max_gap: float, rel: float = 3.0) -> np.ndarray:
+    """Fill the line between consecutive returns (scan order) with points every `spacing` metres, when they
+    are close enough to lie on one surface: gap ≤ min(max_gap, rel · range · bearing step). Sparse beams at
+    long range or grazing incidence then leave a wall in the submap, not a row of dots; depth jumps
+    (gap ≫ range · bearing step) stay open. max_gap ≤ 0 returns the points unchanged."""
+    if max_gap <= 0 or len(points) < 2:
+        return points
+    return _densify(np.ascontiguousarray(points, dtype=np.float64), float(spacing), float(max_gap), float(rel))

@@ -45,11 +45,17 @@ def _wrap(a):
 
 
 @njit(cache=True)
-def gauss_newton(field, ox, oy, res, pts, pose0, prior, weight, max_iter):
-    """Minimise (1/N)·Σ(1 − M(q_k))² + (ξ − ξp)ᵀ W (ξ − ξp) over ξ = (x, y, yaw) from pose0.
+def gauss_newton(field, ox, oy, res, pts, pose0, prior, weight, max_iter, welsch=True, sigma=0.05):
+    """Minimise (1/N)·Σ ρ_k + (ξ − ξp)ᵀ W (ξ − ξp) over ξ = (x, y, yaw) from pose0.
 
-    Returns (pose, H, score): H = (1/N)·Σ JᵀJ, the data term's Gauss–Newton information (its inverse
-    scaled by the residual variance is the match's covariance), and the final mean field value.
+    ρ_k = 1 − M(q_k) (`welsch`, the default): with M = exp(−d²/2σ²) this is the Welsch robust kernel of
+    the point's distance d to the map, quadratic (d²/2σ²) near the optimum and flat for outliers. Solved by
+    iteratively reweighted least squares, point to line: the field gives each point's distance
+    d = σ²·|∇M|/M and the line's normal −∇M/|∇M|, the weight is M (Holland & Welsch 1977). ρ_k = (1 − M)²
+    (hector_mapping's cost, Kohlbrecher et al. 2011) is quartic in d near the optimum, so there even a weak
+    prior biases the answer.
+    Returns (pose, H, score): H = (1/N)·Σ JᵀJ, the data term's Gauss–Newton information, and the final
+    mean field value.
     """
     n = pts.shape[0]
     x = pose0.copy()
@@ -69,11 +75,25 @@ def gauss_newton(field, ox, oy, res, pts, pose0, prior, weight, max_iter):
             qx = x[0] + c * px - s * py
             qy = x[1] + s * px + c * py
             v, gx, gy = sample(field, (qx - ox) / res - 0.5, (qy - oy) / res - 0.5)
-            r = 1.0 - v
-            cost += r * r
-            # dr/dξ = −∇M · dq/dξ ; dq/dyaw = (−s·px − c·py, c·px − s·py)
-            j0 = -gx / res
-            j1 = -gy / res
+            if welsch:
+                cost += 1.0 - v
+                gn = math.hypot(gx, gy)
+                if v < 1e-6 or gn < 1e-12:
+                    continue
+                # unit normal away from the map, signed distance along it, Welsch weight M/σ²
+                nx = -gx / gn
+                ny = -gy / gn
+                r = sigma * sigma * (gn / res) / v
+                wk = math.sqrt(v) / sigma
+                r *= wk
+                j0 = nx * wk
+                j1 = ny * wk
+            else:
+                r = 1.0 - v
+                cost += r * r
+                j0 = -gx / res
+                j1 = -gy / res
+            # dq/dyaw = (−s·px − c·py, c·px − s·py)
             j2 = j0 * (-s * px - c * py) + j1 * (c * px - s * py)
             h[0, 0] += j0 * j0
             h[0, 1] += j0 * j1

@@ -50,17 +50,21 @@ class OdometryConfig(StageConfig):
     search_linear_step: float = param(0.05, lo=0.0, lo_open=True, doc="correlative search step", unit="m")
     search_angular_deg: float = param(3.0, lo=0.0, doc="correlative search half window in yaw", unit="deg")
     search_angular_step_deg: float = param(1.0, lo=0.0, lo_open=True, doc="correlative search yaw step", unit="deg")
+    search_penalty_linear: float = param(0.0, lo=0.0, doc="search score × exp(−this·|Δt|²): prefer the prediction", unit="1/m²")
+    search_penalty_angular: float = param(0.0, lo=0.0, doc="search score × exp(−this·Δyaw²)", unit="1/rad²")
     search_no_odom_linear: float = param(0.3, lo=0.0, doc="search half window when there is no wheel odometry", unit="m")
     search_no_odom_angular_deg: float = param(12.0, lo=0.0, doc="yaw half window without wheel odometry", unit="deg")
     prior_weight: float = param(1.0, lo=0.0, doc="Gauss–Newton pull towards the predicted position", unit="1/m²")
     prior_weight_along: float = param(1.0, lo=0.0, doc="… along the direction of travel (≥1000 for a narrow depth scan)", unit="1/m²")
     prior_weight_yaw: float = param(1.0, lo=0.0, doc="… towards the predicted yaw", unit="1/rad²")
+    match_cost: str = param("welsch", choices=("welsch", "squared"), doc="Gauss–Newton cost: Σ(1 − M) or hector's Σ(1 − M)²")
     gn_iterations: int = param(20, lo=1, doc="Gauss–Newton iterations per level")
     min_points: int = param(10, lo=1, doc="scans with fewer returns are not matched (pose from the prediction)")
     recovery_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="a match scoring below this × the running mean is retried with the wide search")
     recovery_linear: float = param(1.0, lo=0.0, doc="recovery search half window in x and y", unit="m")
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
-    point_voxel: float = param(0.0, lo=0.0, doc="keep one point per cell of this size before matching (0 = all)", unit="m")
+    densify_max_gap: float = param(0.0, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
+    point_voxel: float = param(0.05, lo=0.0, doc="keep one point per cell of this size before matching (0 = all)", unit="m")
 
 
 @dataclass
@@ -183,10 +187,12 @@ class SubmapOdometry:
         return se2.compose(self.pose, self.velocity), False
 
     def _insert(self, pose: np.ndarray, pts: np.ndarray) -> None:
+        from frontend.likelihood import densify
+
         cfg = self.cfg
         if not self.submaps or self.submaps[-1].count >= cfg.submap_keyframes:
             self.submaps.append(_LocalSubmap(pose[:2], cfg))
-        world = se2.transform_points(pose, pts)
+        world = se2.transform_points(pose, densify(pts, cfg.resolution, cfg.densify_max_gap))
         for sm in self.submaps:
             sm.insert(world)
         if self.submaps[0].count >= 2 * cfg.submap_keyframes and len(self.submaps) > 1:
@@ -213,15 +219,19 @@ class SubmapOdometry:
         start = pred
         if lin > 0 or ang > 0:
             start, _ = correlative_search(c.values, c.origin[0], c.origin[1], c.resolution, pts64, pred, lin,
-                                          cfg.search_linear_step, ang, math.radians(cfg.search_angular_step_deg), 0.0, 0.0)
+                                          cfg.search_linear_step, ang, math.radians(cfg.search_angular_step_deg),
+                                          cfg.search_penalty_linear if has_odom else 0.0,
+                                          cfg.search_penalty_angular if has_odom else 0.0)
         # the prior pulls towards the odometry prediction; without odometry towards the search's answer
         prior = pred if has_odom else start
         W = prior_weight_matrix(prior[2], cfg.prior_weight, cfg.prior_weight_along if has_odom else cfg.prior_weight,
                                 cfg.prior_weight_yaw)
-        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, prior, W, cfg.gn_iterations)
+        welsch = cfg.match_cost == "welsch"
+        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, prior, W, cfg.gn_iterations,
+                                welsch, c.sigma)
         f = sm.fine
         pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior, W,
-                                         cfg.gn_iterations)
+                                         cfg.gn_iterations, welsch, f.sigma)
         return np.asarray(pose, dtype=float), float(score), info
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
@@ -237,9 +247,11 @@ class SubmapOdometry:
             return pred, 0.0, np.zeros((3, 3))
         W = prior_weight_matrix(start[2], cfg.prior_weight, cfg.prior_weight, cfg.prior_weight_yaw)
         c, f = sm.coarse, sm.fine
-        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, start, W, cfg.gn_iterations)
+        welsch = cfg.match_cost == "welsch"
+        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, start, W, cfg.gn_iterations,
+                                welsch, c.sigma)
         pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, start, W,
-                                         cfg.gn_iterations)
+                                         cfg.gn_iterations, welsch, f.sigma)
         return np.asarray(pose, dtype=float), float(score), info
 
     def update(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None) -> FrontendResult:
@@ -295,24 +307,6 @@ class KissIcpOdometry:
         self.kiss = KissICP(kc)
         self.prev_odom: np.ndarray | None = None
         self.last_key: np.ndarray | None = None
-
-    def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
-        """Branch-and-bound search over ±recovery_linear, ±recovery_angular_deg, then Gauss–Newton."""
-        from frontend.matcher import SearchGrids, gauss_newton
-
-        cfg = self.cfg
-        sm = self.submaps[0]
-        grids = SearchGrids(sm.coarse, depth=4)
-        pts64 = np.ascontiguousarray(pts, dtype=np.float64)
-        start, _ = grids.search(pts64, pred, cfg.recovery_linear, math.radians(cfg.recovery_angular_deg), 0.0)
-        if start is None:
-            return pred, 0.0, np.zeros((3, 3))
-        W = prior_weight_matrix(start[2], cfg.prior_weight, cfg.prior_weight, cfg.prior_weight_yaw)
-        c, f = sm.coarse, sm.fine
-        p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, start, start, W, cfg.gn_iterations)
-        pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, start, W,
-                                         cfg.gn_iterations)
-        return np.asarray(pose, dtype=float), float(score), info
 
     def update(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None) -> FrontendResult:
         if not self.cfg.use_wheel_odometry:

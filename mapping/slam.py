@@ -45,6 +45,7 @@ class SlamResult:
     mount: np.ndarray = field(default_factory=lambda: np.zeros(3))  # sensor pose in base_link (x, y, yaw)
     points: list[np.ndarray] | None = None  # per-scan end points (base_link, float32) when kept
     scans: list[Scan] | None = None  # the Scan records, when kept (for the map)
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None  # (stamps s, N×3) from the log's ground-truth topic
     duration_s: float = 0.0  # log time spanned by the scans
     warnings: list[str] = field(default_factory=list)
     recoveries: int = 0
@@ -200,6 +201,9 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
             raise TopicError(f"{Path(path).name} has no sensor_msgs/LaserScan topic; --source laser needs one (see `kosmap info`)")
         use_odom = bool(det.odom) and ocfg.use_wheel_odometry
         topics = [det.scan] + ([det.odom] if use_odom else []) + ([det.tf_static] if det.tf_static else [])
+        topics += [det.ground_truth] if det.ground_truth else []  # read for scoring only, never used by SLAM
+        gt_t: list[float] = []
+        gt_p: list[tuple[float, float, float]] = []
         wheel = WheelOdometry()
         pending: deque[Scan] = deque()
         statics: dict[str, tuple[str, np.ndarray]] = {}
@@ -232,7 +236,10 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
             wheel.drop_before(scan.stamp_ns - int(2e9))
 
         for rec in log.read(topics):
-            if isinstance(rec, Odometry):
+            if isinstance(rec, Odometry) and rec.topic == det.ground_truth:
+                gt_t.append(rec.stamp)
+                gt_p.append((rec.x, rec.y, rec.yaw))
+            elif isinstance(rec, Odometry):
                 base = rec.child_frame_id.lstrip("/") or base
                 wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
                 while pending and wheel.covers(pending[0].stamp_ns):
@@ -265,6 +272,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         warnings.append(f"{state['no_odom']} scan(s) lay outside the wheel odometry's time span: matched without it")
     result.warnings = warnings
     result.scans = kept
+    if gt_t:
+        result.ground_truth = (np.array(gt_t), np.array(gt_p))
     return result
 
 
@@ -272,7 +281,7 @@ def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = Non
              ground_truth: str | Path | tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Accuracy of a run: the relations metric (in the scan's frame, which the relations relate) and the
     loops' precision against the trajectory the relations describe; ATE, RPE and loop precision against a
-    TUM ground truth (base_link)."""
+    TUM ground truth (base_link), or against the log's own ground-truth topic when no file is given."""
     from backend import metrics as M
     from backend.trajio import read_tum
 
@@ -295,6 +304,8 @@ def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = Non
             meas_s = se2.compose(se2.compose(se2.inverse(mount), meas), mount)  # base → sensor frame
             out["loop_precision"] = M.loop_precision(meas_s, pa, pb, ca, cb)
             out["loop_precision"]["reference"] = "trajectory solved from the relations, carried by the front end"
+    if ground_truth is None and result.ground_truth is not None:
+        ground_truth = result.ground_truth
     if ground_truth is not None:
         tg, pg = read_tum(ground_truth) if not isinstance(ground_truth, tuple) else ground_truth
         out["ate"] = M.ate(result.stamps, result.poses, tg, pg)

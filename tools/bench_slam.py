@@ -1,0 +1,197 @@
+"""Benchmark: our 2D SLAM on the public laser logs (Intel, FR079, MIT CSAIL) against their Kümmerle relations,
+beside the published Cartographer and Graph Mapping numbers and kiss-icp measured in the same run.
+
+    .venv/bin/python -m tools.bench_slam [--logs intel fr079 csail] [--seconds S] [--no-baselines]
+
+Per log: raw wheel odometry; kiss-icp with the odometry increment as its guess (front end only, as
+STACK.md measured it); our scan-to-submap front end alone; the full system (front end + loop closure +
+pose graph). One parameter set, the defaults of [odometry] and [graph], for every log. Wall-clock and
+CPU seconds of the whole run (reading the log included). Writes docs/benchmarks.md and docs/bench/slam.json.
+`--seconds` cuts each log to its first S seconds (profiling slices; not comparable with the published numbers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from backend.metrics import read_relations, relations_metric, relations_metric_split
+from frontend import se2
+from mapping.config import Config, load_config
+from mapping.slam import _clean, evaluate, run_slam
+from tools.data import REPO, data_dir
+
+LOGS = {
+    "intel": ("laser/intel/intel.orig.bag", "laser/intel/intel.relations", "Intel"),
+    "fr079": ("laser/fr079/fr079.orig.bag", "laser/fr079/fr079.relations", "Freiburg bldg 79"),
+    "csail": ("laser/mit-csail/mit-csail.clf", "laser/mit-csail/mit-csail.relations", "MIT CSAIL"),
+}
+# Hess et al. 2016 Table II (Cartographer, and Graph Mapping quoted from Kümmerle et al. 2009) and Table V
+# (Cartographer wall clock on a Xeon E5-1650 3.2 GHz): ../shared/data/laser/SOURCES.md.
+PUBLISHED = {
+    "intel": {"cartographer": {"abs_trans": (0.0229, 0.0239), "sq_trans": (0.0011, 0.0040), "abs_rot_deg": (0.453, 1.335),
+                               "sq_rot_deg2": (1.986, 23.988)},
+              "graph_mapping": {"abs_trans": (0.031, 0.026), "sq_trans": (0.002, 0.004), "abs_rot_deg": (1.3, 4.7),
+                                "sq_rot_deg2": (24.0, 166.1)},
+              "cartographer_time": (2691, 179), "cartographer_loops": (5786, 0.972)},
+    "fr079": {"cartographer": {"abs_trans": (0.0452, 0.0354), "sq_trans": (0.0033, 0.0055), "abs_rot_deg": (0.538, 0.718),
+                               "sq_rot_deg2": (0.804, 3.627)},
+              "graph_mapping": {"abs_trans": (0.056, 0.042), "sq_trans": (0.005, 0.011), "abs_rot_deg": (0.6, 0.6),
+                                "sq_rot_deg2": (0.7, 1.7)},
+              "cartographer_time": (1061, 62), "cartographer_loops": (412, 0.998)},
+    "csail": {"cartographer": {"abs_trans": (0.0319, 0.0363), "sq_trans": (0.0023, 0.0099), "abs_rot_deg": (0.369, 0.365),
+                               "sq_rot_deg2": (0.270, 0.637)},
+              "graph_mapping": {"abs_trans": (0.004, 0.009), "sq_trans": (0.0001, 0.0005), "abs_rot_deg": (0.05, 0.08),
+                                "sq_rot_deg2": (0.01, 0.04)},
+              "cartographer_time": (424, 35), "cartographer_loops": (1857, 0.941)},
+}
+METRICS = (("abs_trans", "abs trans (m)", 4), ("sq_trans", "sq trans (m²)", 4), ("abs_rot_deg", "abs rot (°)", 3),
+           ("sq_rot_deg2", "sq rot (°²)", 3))
+
+
+def _timed(path: Path, cfg: Config, seconds: float | None):
+    w0, c0 = time.perf_counter(), time.process_time()
+    r = run_slam(path, cfg, max_seconds=seconds)
+    return r, time.perf_counter() - w0, time.process_time() - c0
+
+
+def _rel(stamps, poses, rel):
+    return {"all": relations_metric(stamps, poses, rel, max_missing=1.0), "split": relations_metric_split(stamps, poses, rel)}
+
+
+def bench_log(name: str, seconds: float | None, baselines: bool) -> dict:
+    lp, rp, title = LOGS[name]
+    path, relp = data_dir() / lp, data_dir() / rp
+    rel = read_relations(relp)
+    out: dict = {"log": title, "file": lp}
+    cfg = Config()
+    r, wall, cpu = _timed(path, cfg, seconds)
+    if seconds is not None:
+        t_end = r.stamps[-1]
+        rel = rel[(rel[:, 0] <= t_end) & (rel[:, 1] <= t_end)]
+    ev = evaluate(r, rel)
+    out["ours"] = {"relations": ev["relations"], "split": ev["relations_split_30s"], "loop_precision": ev.get("loop_precision"),
+                   "wall_s": wall, "cpu_s": cpu, "duration_s": r.duration_s, "rt_wall": r.duration_s / wall,
+                   "rt_cpu": r.duration_s / cpu, "seconds": r.timings, "scans": len(r.stamps_ns),
+                   "keyframes": len(r.keyframes), "loops": len(r.loops), "recoveries": r.recoveries}
+    print(f"{name}: ours {ev['relations']['abs_trans']['mean']:.4f} m in {wall:.1f} s wall / {cpu:.1f} s cpu "
+          f"({r.duration_s / wall:.0f}× real time)", flush=True)
+    mount = np.repeat(r.mount[None], len(r.poses), 0)
+    odo = r.odom_poses
+    if np.isfinite(odo).all():
+        out["odometry"] = _rel(r.stamps, se2.compose(odo, mount), rel)
+    if baselines:
+        fe_cfg = load_config(None, {"graph.loop_closure": False})
+        f, fwall, fcpu = _timed(path, fe_cfg, seconds)
+        out["frontend_only"] = {**_rel(f.stamps, f.sensor_poses(), rel), "wall_s": fwall, "cpu_s": fcpu}
+        print(f"{name}: front end only {out['frontend_only']['all']['abs_trans']['mean']:.4f} m", flush=True)
+        k_cfg = load_config(None, {"graph.loop_closure": False, "odometry.matcher": "kiss-icp"})
+        k, kwall, kcpu = _timed(path, k_cfg, seconds)
+        out["kiss_icp_odom"] = {**_rel(k.stamps, k.sensor_poses(), rel), "wall_s": kwall, "cpu_s": kcpu,
+                                "rt_wall": k.duration_s / kwall, "voxel_size": k_cfg.odometry.voxel_size}
+        print(f"{name}: kiss-icp+odom {out['kiss_icp_odom']['all']['abs_trans']['mean']:.4f} m in {kwall:.1f} s", flush=True)
+    return out
+
+
+def _pm(v, nd):
+    if isinstance(v, dict):
+        return f"{v['mean']:.{nd}f} ± {v['std']:.{nd}f}"
+    return f"{v[0]:.{nd}f} ± {v[1]:.{nd}f}"
+
+
+def markdown(res: dict, meta: dict) -> str:
+    L = ["# Benchmarks: 2D laser SLAM on the public relation logs", "",
+         f"Generated by `tools/bench_slam.py` on {meta['date']} ({meta['machine']}, {meta['cores']} cores, load average "
+         f"{meta['load_before']} before / {meta['load_after']} after; the machine is shared, so wall-clock times vary "
+         "with the other jobs: CPU seconds are given too).", "",
+         "Metric: Kümmerle et al. 2009 relations, errors of δ = x̂_t1⁻¹ ⊕ x̂_t2 against the reference, mean ± std "
+         "(population) over all relations of the log, in the scan's frame (base_link ⊕ the laser mount from "
+         "`/tf_static`). Published numbers: Hess et al. 2016 Table II (Cartographer; Graph Mapping (GM) from "
+         "Kümmerle et al. 2009), Table V (Cartographer wall clock, Xeon E5-1650 3.2 GHz).", "",
+         f"**One parameter set for all logs**: the defaults of `[odometry]` and `[graph]` (listed at the end); "
+         f"no per-log tuning.", ""]
+    if meta.get("seconds"):
+        L += [f"**Slices**: only the first {meta['seconds']} s of each log (not comparable with the published numbers).", ""]
+    for name, r in res.items():
+        pub = PUBLISHED[name]
+        o = r["ours"]
+        L += [f"## {r['log']}", "", "| | " + " | ".join(h for _, h, _ in METRICS) + " |",
+              "|---|" + "---|" * len(METRICS)]
+        L.append("| **kosmap (ours)** | " + " | ".join(f"**{_pm(o['relations'][k], nd)}**" for k, _, nd in METRICS) + " |")
+        L.append("| Cartographer (published) | " + " | ".join(_pm(pub["cartographer"][k], nd) for k, _, nd in METRICS) + " |")
+        L.append("| Graph Mapping (published) | " + " | ".join(_pm(pub["graph_mapping"][k], nd) for k, _, nd in METRICS) + " |")
+        if "frontend_only" in r:
+            L.append("| our front end alone (no loops) | " + " | ".join(_pm(r["frontend_only"]["all"][k], nd) for k, _, nd in METRICS) + " |")
+        if "kiss_icp_odom" in r:
+            L.append(f"| kiss-icp + odometry (voxel {r['kiss_icp_odom']['voxel_size']} m, no loops) | "
+                     + " | ".join(_pm(r["kiss_icp_odom"]["all"][k], nd) for k, _, nd in METRICS) + " |")
+        if "odometry" in r:
+            L.append("| raw wheel odometry | " + " | ".join(_pm(r["odometry"]["all"][k], nd) for k, _, nd in METRICS) + " |")
+        dur, cwall = pub["cartographer_time"]
+        L += ["", "| time | data (s) | wall clock (s) | CPU (s) | real-time factor (wall) |", "|---|---|---|---|---|",
+              f"| kosmap | {o['duration_s']:.0f} | {o['wall_s']:.1f} | {o['cpu_s']:.1f} | **{o['rt_wall']:.0f}×** |",
+              f"| Cartographer (published) | {dur} | {cwall} | – | {dur / cwall:.0f}× |"]
+        if "kiss_icp_odom" in r:
+            k = r["kiss_icp_odom"]
+            L.append(f"| kiss-icp + odometry (front end only) | {o['duration_s']:.0f} | {k['wall_s']:.1f} | {k['cpu_s']:.1f} | {k['rt_wall']:.0f}× |")
+        s = o["seconds"]
+        L += ["", f"Our time split (s): read + scan preparation {s.get('read', 0):.1f}, front end {s['frontend']:.1f}, "
+                  f"loop search {s['loops']:.1f}, graph (ISAM2) {s['graph']:.1f}, final batch solve {s['optimize']:.1f}. "
+                  f"{o['scans']} scans, {o['keyframes']} keyframes, {o['loops']} loop constraints, "
+                  f"{o['recoveries']} front-end recoveries."]
+        lp = o.get("loop_precision")
+        if lp:
+            cl, cp = pub["cartographer_loops"]
+            L += ["", f"Loop precision: {lp['correct']} of {lp['checked']} accepted loop constraints ({lp['precision']:.1%}) "
+                      f"agree within {lp['trans_tol']} m and {lp['rot_tol_deg']}° with the reference trajectory solved from "
+                      f"the relations (median error {lp['median_trans_error']:.3f} m, {lp['median_rot_error_deg']:.2f}°); "
+                      f"Cartographer published {cl} constraints, {cp:.1%} precision (its criterion may differ)."]
+        sp = o["split"]
+        if "short" in sp and "long" in sp:
+            L += ["", f"Relations shorter than 30 s (local accuracy): {_pm(sp['short']['abs_trans'], 4)} m ({sp['short']['n']}); "
+                      f"30 s and longer (loops): {_pm(sp['long']['abs_trans'], 4)} m ({sp['long']['n']})."]
+        L.append("")
+    L += ["## Notes", "",
+          "- FR079: the relations fit a frame about 4 cm ahead of the laser better than the laser's own frame "
+          "(front end alone, short relations: 0.0268 m in the laser frame vs 0.0236 m 4 cm ahead, measured while "
+          "building this); we score in the laser frame, as the relation timestamps are the laser scans'.",
+          "- MIT CSAIL's odometry is partly pre-corrected (STACK.md) and stalls for a few scans then jumps (up to "
+          "85° at once); the front end's branch-and-bound recovery handles those. GM's CSAIL numbers are far "
+          "below everyone's, as in Hess et al.",
+          "- Loop precision needs a reference: the relations are solved as a pose graph (they come from one "
+          "checked trajectory and agree to ~6 mm median) and carried to the keyframes' times by our front end.",
+          "", "## Parameters (one set for every log)", "", "```toml", meta["params"], "```", ""]
+    return "\n".join(L)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--logs", nargs="+", default=list(LOGS), choices=list(LOGS))
+    ap.add_argument("--seconds", type=float, default=None, help="only the first S seconds of each log")
+    ap.add_argument("--no-baselines", action="store_true", help="skip kiss-icp and the front-end-only run")
+    ap.add_argument("--out", type=Path, default=REPO / "docs")
+    a = ap.parse_args()
+    import tomli_w
+
+    load_before = " ".join(f"{v:.2f}" for v in os.getloadavg())
+    res = {n: bench_log(n, a.seconds, not a.no_baselines) for n in a.logs}
+    cfg = Config()
+    params = tomli_w.dumps({"odometry": dataclasses.asdict(cfg.odometry), "graph": dataclasses.asdict(cfg.graph)})
+    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.processor() or platform.machine(),
+            "cores": os.cpu_count(), "load_before": load_before,
+            "load_after": " ".join(f"{v:.2f}" for v in os.getloadavg()), "seconds": a.seconds, "params": params}
+    (a.out / "bench").mkdir(parents=True, exist_ok=True)
+    (a.out / "bench" / "slam.json").write_text(json.dumps(_clean({"meta": meta, "results": res}), indent=2))
+    (a.out / "benchmarks.md").write_text(markdown(res, meta))
+    print(f"wrote {a.out / 'benchmarks.md'} and {a.out / 'bench' / 'slam.json'}")
+
+
+if __name__ == "__main__":
+    main()
