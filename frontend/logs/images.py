@@ -34,6 +34,13 @@ def _natural(p: Path):
         return (1, 0.0, [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)])
 
 
+def _name_ns(stem: str) -> int | None:
+    sec, dot, frac = stem.partition(".")
+    if not sec.isdigit() or (dot and (not frac.isdigit() or len(frac) > 9)):
+        return None
+    return int(sec) * 1_000_000_000 + (int(frac.ljust(9, "0")) if frac else 0)
+
+
 def depth_files(folder: Path) -> list[Path]:
     """The depth images of a folder (or of its `depth/` subfolder), in numeric/natural order."""
     for d in (folder, folder / "depth"):
@@ -118,12 +125,10 @@ class ImageFolder(LogReader):
         self.stamps_ns = self._stamps()
 
     def _stamps(self) -> list[int]:
-        try:
-            vals = [float(p.stem) for p in self.files]
-            if len(set(vals)) == len(vals):
-                return [seconds_to_ns(v) for v in vals]
-        except ValueError:
-            pass
+        """Nanoseconds from names like 1305031102.160407 (parsed exactly, not through a float), else at fps."""
+        vals = [_name_ns(p.stem) for p in self.files]
+        if all(v is not None for v in vals) and len(set(vals)) == len(vals):
+            return vals  # type: ignore[return-value]
         return [seconds_to_ns(i / self.fps) for i in range(len(self.files))]
 
     def info(self) -> LogInfo:

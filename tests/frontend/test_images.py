@@ -1,0 +1,53 @@
+"""The depth-image folder reader: camera files in their formats, stamps from names, one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from frontend.errors import LogError
+from frontend.logs.images import ImageFolder, read_camera_file
+from frontend.records import CameraModel, DepthFrame
+from tools.commands.planes import normal_quaternions
+
+
+def test_camera_files(tmp_path):
+    (tmp_path / "o3d.json").write_text(json.dumps({"width": 640, "height": 480,
+                                                   "intrinsic_matrix": [525.0, 0, 0, 0, 526.0, 0, 319.5, 239.5, 1]}))
+    cam, scale = read_camera_file(tmp_path / "o3d.json")
+    assert (cam["fx"], cam["fy"], cam["cx"], cam["cy"], cam["width"], scale) == (525.0, 526.0, 319.5, 239.5, 640, 1000.0)
+    (tmp_path / "c.yaml").write_text("fx: 518.0\nfy: 519.0\ncx: 325.5\ncy: 253.5\ndepth_scale: 5000\n")
+    cam, scale = read_camera_file(tmp_path / "c.yaml")
+    assert cam["fx"] == 518.0 and scale == 5000.0
+    (tmp_path / "bad.yaml").write_text("fx: 518.0\n")
+    with pytest.raises(LogError, match="fx, fy, cx, cy"):
+        read_camera_file(tmp_path / "bad.yaml")
+
+
+def test_folder_stamps_scale_and_camera(tmp_path):
+    d = tmp_path / "seq" / "depth"
+    d.mkdir(parents=True)
+    img = np.full((6, 8), 5000, np.uint16)
+    for name in ("1305031102.226738", "1305031102.160407"):
+        cv2.imwrite(str(d / f"{name}.png"), img)
+    (tmp_path / "seq" / "camera.yaml").write_text("fx: 10\nfy: 10\ncx: 3.5\ncy: 2.5\ndepth_scale: 5000\n")
+    log = ImageFolder(tmp_path / "seq")
+    recs = list(log.read())
+    assert isinstance(recs[0], CameraModel) and recs[0].width == 8 and recs[0].fx == 10
+    frames = [r for r in recs if isinstance(r, DepthFrame)]
+    assert [f.stamp_ns for f in frames] == [1305031102160407000, 1305031102226738000]  # sorted by time
+    assert frames[0].encoding == "32FC1" and np.allclose(frames[0].meters(), 1.0)
+    assert log.info().count("/camera/depth/image") == 2
+    with pytest.raises(LogError, match="no depth images"):
+        ImageFolder(tmp_path)
+
+
+def test_normal_quaternions_turn_x_onto_the_normal():
+    n = np.array([[1.0, 0, 0], [-1.0, 0, 0], [0, 0, -1.0], [0.3, -0.5, 0.8]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    q = normal_quaternions(n)
+    assert np.allclose(Rotation.from_quat(q).apply([1.0, 0, 0]), n, atol=1e-9)
