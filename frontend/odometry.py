@@ -63,7 +63,7 @@ class OdometryConfig(StageConfig):
     recovery_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="a match scoring below this × the running mean is retried with the wide search")
     recovery_linear: float = param(1.0, lo=0.0, doc="recovery search half window in x and y", unit="m")
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
-    densify_max_gap: float = param(0.0, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
+    densify_max_gap: float = param(0.3, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
     point_voxel: float = param(0.05, lo=0.0, doc="keep one point per cell of this size before matching (0 = all)", unit="m")
 
 
