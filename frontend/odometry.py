@@ -24,6 +24,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from numba import njit
+
 from frontend import se2
 from frontend.params import StageConfig, param
 
@@ -58,13 +60,13 @@ class OdometryConfig(StageConfig):
     prior_weight_along: float = param(1.0, lo=0.0, doc="… along the direction of travel (≥1000 for a narrow depth scan)", unit="1/m²")
     prior_weight_yaw: float = param(1.0, lo=0.0, doc="… towards the predicted yaw", unit="1/rad²")
     match_cost: str = param("welsch", choices=("welsch", "squared"), doc="Gauss–Newton cost: Σ(1 − M) or hector's Σ(1 − M)²")
-    gn_iterations: int = param(20, lo=1, doc="Gauss–Newton iterations per level")
+    gn_iterations: int = param(10, lo=1, doc="Gauss–Newton iterations per level")
     min_points: int = param(10, lo=1, doc="scans with fewer returns are not matched (pose from the prediction)")
     recovery_ratio: float = param(0.6, lo=0.0, hi=1.0, doc="a match scoring below this × the running mean is retried with the wide search")
     recovery_linear: float = param(1.0, lo=0.0, doc="recovery search half window in x and y", unit="m")
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
     densify_max_gap: float = param(0.3, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
-    point_voxel: float = param(0.05, lo=0.0, doc="keep one point per cell of this size before matching (0 = all)", unit="m")
+    point_spacing: float = param(0.05, lo=0.0, doc="drop a return nearer than this to the last one kept, in scan order (0 = keep all)", unit="m")
 
 
 @dataclass
@@ -141,6 +143,60 @@ def voxel_filter(points: np.ndarray, size: float) -> np.ndarray:
     keys = np.floor(points / size).astype(np.int64)
     _, idx = np.unique(keys[:, 0] * 1_000_003 + keys[:, 1], return_index=True)
     return points[np.sort(idx)]
+
+
+@njit(cache=True)
+def _thin(points, spacing):
+    keep = np.zeros(points.shape[0], np.bool_)
+    lx = np.inf
+    ly = np.inf
+    s2 = spacing * spacing
+    for i in range(points.shape[0]):
+        dx = points[i, 0] - lx
+        dy = points[i, 1] - ly
+        if dx * dx + dy * dy >= s2:
+            keep[i] = True
+            lx = points[i, 0]
+            ly = points[i, 1]
+    return keep
+
+
+def thin(points: np.ndarray, spacing: float) -> np.ndarray:
+    """Drop each return nearer than `spacing` to the last one kept (scan order): dense near returns thinned,
+    far ones kept, in O(n)."""
+    if spacing <= 0 or len(points) == 0:
+        return points
+    return points[_thin(np.ascontiguousarray(points, dtype=np.float64), float(spacing))]
+
+
+@njit(cache=True)
+def _scan_points(ranges, angle_min, inc, lo, hi, mx, my, myaw):
+    n = ranges.shape[0]
+    out = np.empty((n, 2))
+    m = 0
+    c = math.cos(myaw)
+    s = math.sin(myaw)
+    for i in range(n):
+        r = ranges[i]
+        if not (r >= lo and r <= hi):  # also drops NaN and ±inf
+            continue
+        a = angle_min + i * inc
+        x = r * math.cos(a)
+        y = r * math.sin(a)
+        out[m, 0] = mx + c * x - s * y
+        out[m, 1] = my + s * x + c * y
+        m += 1
+    return out[:m]
+
+
+def scan_to_points(scan, mount: np.ndarray | None, min_range: float, max_range: float) -> np.ndarray:
+    """End points (N×2, base_link) of the beams of a Scan that returned within [min_range, max_range]
+    (and within the scan's own [range_min, range_max)); `mount` = the sensor's pose in base_link."""
+    lo = max(float(min_range), float(scan.range_min))
+    hi = min(float(max_range), math.nextafter(float(scan.range_max), 0.0))
+    m = np.zeros(3) if mount is None else np.asarray(mount, dtype=float)
+    return _scan_points(np.asarray(scan.ranges), float(scan.angle_min), float(scan.angle_increment), lo, hi,
+                        float(m[0]), float(m[1]), float(m[2]))
 
 
 def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: float) -> np.ndarray:
@@ -258,7 +314,7 @@ class SubmapOdometry:
         cfg = self.cfg
         if not cfg.use_wheel_odometry:
             odom_pose = None
-        pts = voxel_filter(points, cfg.point_voxel)
+        pts = thin(points, cfg.point_spacing)
         if self.pose is None:
             self.pose = np.zeros(3)
             self.prev_odom = odom_pose

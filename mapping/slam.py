@@ -21,7 +21,7 @@ from backend.keyframes import Keyframe, KeyframeSelector, scan_poses
 from backend.loops import LoopCloser, LoopConstraint
 from frontend import se2
 from frontend.errors import KosmapError, TopicError
-from frontend.odometry import OdometryConfig, WheelOdometry, make_odometry, scan_points_base
+from frontend.odometry import OdometryConfig, WheelOdometry, make_odometry, scan_to_points
 from frontend.records import Odometry, Scan, Transforms
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
@@ -222,7 +222,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
                     if frame != base:
                         warnings.append(f"no static transform from {base} to {frame}; the scan is taken as mounted at {base}")
                 mounts[frame] = m
-            pts = scan_points_base(scan.ranges, scan.angles, scan.valid(), mounts[frame], ocfg.min_range, ocfg.max_range)
+            pts = scan_to_points(scan, mounts[frame], ocfg.min_range, ocfg.max_range)
             if len(pts) < ocfg.min_points:
                 state["empty"] += 1
             odom = None
