@@ -591,17 +591,19 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
 
 @njit(cache=True)
 def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, eps, alpha, up, fwd, left,
-             sl_min, sl_max, cam_h, ground_max_h, drop, state, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats):
+             sl_min, sl_max, cam_h, ground_max_h, drop, state, st, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
+             stats):
     H, W = depth.shape
     npx = H * W
     flat = depth.ravel()
-    st = np.zeros(npx, np.uint8)  # 0 ineligible, 1 eligible, 2 examined (outlier), 3 plane point, 4 dropped
+    # st (a reused buffer of ≥ npx): 0 ineligible, 1 eligible, 2 examined (outlier), 3 plane point, 4 dropped
     n_elig = 0
-    for i in range(npx):
+    for i in range(npx):  # branch-free depthConstraints
         z = flat[i]
-        if z > min_d and z <= max_d:
-            st[i] = 1
-            n_elig += 1
+        ok = (z > min_d) & (z <= max_d)
+        st[i] = ok
+        n_elig += ok
+    n2 = 0  # pixels in state 2, kept as they change (no pass over the image at the end)
     li = np.empty(l, np.int64)
     lx = np.empty(l, np.float64)
     ly = np.empty(l, np.float64)
@@ -667,6 +669,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
                         continue
                     if st[j] == 1:
                         st[j] = 2
+                        n2 += 1
             n_bad += 1
             if n_bad > max_bad:  # α_in can no longer be reached
                 break
@@ -674,6 +677,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
             for a in range(n_in):
                 if st[li[a]] == 1:
                     st[li[a]] = 2
+                    n2 += 1
             continue
         if n_in < 3:
             continue
@@ -687,6 +691,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
             for a in range(n_in):
                 j = li[a]
                 if st[j] == 1 or st[j] == 2:
+                    n2 -= st[j] == 2
                     st[j] = 4
                     n_drop += 1
             continue
@@ -694,6 +699,7 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
         for a in range(n_in):
             j = li[a]
             if st[j] == 1 or st[j] == 2:
+                n2 -= st[j] == 2
                 st[j] = 3
                 out_pix[n_out, 0] = j // W
                 out_pix[n_out, 1] = j - (j // W) * W
@@ -711,13 +717,8 @@ def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, ep
             pl_cls[n_pl] = cls
             pl_cnt[n_pl] = added
             n_pl += 1
-    n_outl = 0
-    remaining = 0
-    for i in range(npx):
-        if st[i] == 1:
-            remaining += 1
-        elif st[i] == 2:
-            n_outl += 1
+    n_outl = n2
+    remaining = n_elig - n_out - n_drop - n2
     stats[0] = npx
     stats[1] = npx - n_elig
     stats[2] = n_out
@@ -1021,7 +1022,8 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     n, p = _fspf_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.fspf_max_points,
                     cfg.fspf_max_neighborhoods, l, cfg.fspf_window_px, cfg.delta_m, cfg.fspf_error_m,
                     cfg.fspf_min_inlier_fraction, *classes_of.args(), _drop_mask(cfg),
-                    _rng_state(seed), out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, stats)
+                    _rng_state(seed), _workspace(H * W, 1)["st"], out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls,
+                    pl_cnt, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats)), (H, W), "fspf")
     return _finish(planes, cfg, classes_of, t0)
