@@ -161,6 +161,15 @@ def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max
 
 
 @njit(cache=True)
+def _classify_many_nb(normals, offsets, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
+    out = np.empty(len(offsets), np.int8)
+    for k in range(len(offsets)):
+        out[k] = _classify_nb(normals[k, 0], normals[k, 1], normals[k, 2], offsets[k], up, fwd, left, sl_min, sl_max,
+                              cam_h, ground_max_h)
+    return out
+
+
+@njit(cache=True)
 def _refit_nb(wx, wy, wz, act, n):
     """Least-squares plane through the points act[:n]: smallest eigenvector of their covariance."""
     mx = my = mz = 0.0
@@ -921,9 +930,9 @@ class _Classes:
         self.cfg = cfg
 
     def __call__(self, normals: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-        c = self.cfg
-        return classify(normals, self.up, self.fwd, self.left, c.slanted_min_deg, c.slanted_max_deg, offsets,
-                        self.cam_h, c.ground_max_height)
+        """planes.classify, compiled (the same rules: tests/frontend/test_fspf.py checks they agree)."""
+        return _classify_many_nb(np.ascontiguousarray(normals, np.float64), np.ascontiguousarray(offsets, np.float64),
+                                 *self.args())
 
     def args(self) -> tuple:
         c = self.cfg

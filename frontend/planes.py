@@ -379,7 +379,9 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
         classes = np.zeros(G, np.int8)
         classes[group[order][::-1]] = planes.classes[order][::-1]  # the largest patch writes last
     counts = np.bincount(group, weights=planes.counts, minlength=G).astype(np.int64)
-    keep = ~np.isin(classes, drop_classes) if drop_classes else np.ones(G, bool)
+    dropped = np.zeros(len(PLANE_CLASSES), bool)
+    dropped[list(drop_classes)] = True
+    keep = ~dropped[classes]
     stats = replace(planes.stats)
     if keep.all():
         new_plane = _remap_nb(planes.plane, group.astype(np.int32), inplace)

@@ -189,3 +189,21 @@ def test_merge_two_patches_of_one_wall():
     assert len(merge_planes(planes, 1.0, 0.05)) == 3  # 2° apart: not within 1°
     dropped = merge_planes(planes, 5.0, 0.05, drop_classes=(FRONT,))
     assert len(dropped) == 0 and dropped.stats.dropped == 1000 and dropped.stats.inliers == 0
+
+
+def test_compiled_classification_matches_numpy():
+    from frontend.fspf import _Classes
+    from tools.boxroom import default_mount
+
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(2000, 3))
+    n[:400] = [0, -1, 0]  # near level planes, up and down, in both camera poses
+    n[400:800] = [0, 1, 0]
+    n[:800] += rng.normal(0, 0.2, (800, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    d = rng.uniform(0.05, 3.0, 2000)
+    for mount in (None, default_mount(15.0, 1.2)):
+        c = _Classes(FspfConfig(), mount)
+        ref = classify(n, c.up, c.fwd, c.left, 3.0, 80.0, d, c.cam_h, 0.15)
+        assert np.array_equal(c(n, d), ref)
+        assert set(ref.tolist()) >= {0, 1, 2, 3, 4, 5}
