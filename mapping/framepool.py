@@ -65,6 +65,7 @@ class FramePool:
         self.in_flight = max(1, in_flight if in_flight is not None else 3 * max(1, self.workers))
         self._queue: deque[tuple[Any, Any]] = deque()
         self._ex: ProcessPoolExecutor | None = None
+        warmup()  # compile (or load) the kernels here once: forked workers inherit them instead of compiling each
         if self.workers > 0:
             ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
             self._ex = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
@@ -73,8 +74,6 @@ class FramePool:
             # with other threads running can copy a held lock
             for f in [self._ex.submit(_ping) for _ in range(self.workers)]:
                 f.result()
-        else:
-            warmup()
 
     def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None) -> None:
         if self._ex is None:

@@ -96,12 +96,15 @@ class KosStream:
 
     def __init__(self, det, cfg: Config, run: ScanRun, pool: FramePool, limit: int | None = None,
                  on_frame: Callable[[KosFrame], None] | None = None,
-                 keep_planes: Callable[[DepthItem], bool] | None = None, min_period_ns: int = 0) -> None:
+                 keep_planes: Callable[[DepthItem], bool] | None = None, min_period_ns: int = 0,
+                 fuse: bool = True) -> None:
         self.det, self.cfg, self.run, self.pool = det, cfg, run, pool
         self.limit = None if limit is None else limit * len(det.depth)
         self.on_frame, self.keep_planes = on_frame, keep_planes
         self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
         self._last: dict[str, int] = {}
+        self.fuse = fuse  # add the scan fused with the laser to each step (else the step only names its laser)
+        self._seen: dict[tuple, np.ndarray] = {}  # bins in view, per set of cameras
         self.resolver = DepthResolver(det, cfg.depth)
         self.sync = CameraSync(det.depth, tol_ns=25_000_000)
         self.cams: dict[str, tuple] = {}
@@ -167,7 +170,10 @@ class KosStream:
         run, cfg = self.run, self.cfg
         b = run.bearings
         ranges = merge_cameras(step_frames)
-        seen = in_view(b, list(cams))
+        key = tuple(id(c) for c in cams)
+        seen = self._seen.get(key)
+        if seen is None:
+            seen = self._seen[key] = in_view(b, list(cams))
         scans = {}
         for k, (name, _, _) in enumerate(cfg.kos.bands()):
             r = ranges[k].copy()
@@ -179,7 +185,7 @@ class KosStream:
             laser = min(lasers, key=lambda s: abs(s.stamp_ns - step_frames[0].stamp_ns))
             if abs(laser.stamp_ns - step_frames[0].stamp_ns) > 100_000_000:
                 laser = None
-        if laser is not None:
+        if laser is not None and self.fuse:
             if run.laser_mount is None:
                 run.laser_mount = lookup_static(self.resolver.statics, "base_link", laser.frame_id) or \
                     Transform.identity("base_link", laser.frame_id)

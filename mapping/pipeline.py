@@ -1,0 +1,860 @@
+"""`kosmap build`: a log → FSPF+ → KOS → SLAM → occupancy grids → comparisons → report, in one streaming pass.
+
+Pass 1 reads the log once. Depth frames go to a process pool (mapping/framepool.py: FSPF+ and every KOS level
+per frame, seeded by the frame's index, so the results equal a serial run's); the per-step KOS scans come back
+in order, cameras merged (mapping/kosscan.py); the chosen KOS scan goes to one SLAM and, when the log has one,
+the laser to another, each with the wheel odometry interpolated at its stamps (mapping/slam.py). Everything a
+map needs later is appended to files in a temporary folder (the "spill"), never kept in memory, so memory
+stays flat however long the log. After the SLAMs' final solves, pass 2 reads the spill back once and builds
+the grids of every source and level from the optimised poses, and writes the Foxglove MCAP. Then the maps are
+compared (KOS vs laser vs blueprint), and metrics.json, the TUM trajectories, stats.csv, the effective config
+and the report (mapping/report.py) are written.
+
+Ctrl-C (or a KeyboardInterrupt from `on_progress`) stops reading; what was read is mapped and written as
+usual, marked partial in metrics.json and the report.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import json
+import math
+import os
+import shutil
+import signal
+import tempfile
+import threading
+import time
+from array import array
+from bisect import bisect_left
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from frontend import se2
+from frontend.camera import lookup_static
+from frontend.depthstream import DepthItem
+from frontend.errors import ConfigError, KosmapError, TopicError
+from frontend.kos import FUSED, OBSTACLE, fuse_with_laser
+from frontend.kosframe import KosFrame
+from frontend.logs import detect_topics, open_log
+from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base
+from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
+from mapping.config import Config, config_dict, write_config
+from mapping.framepool import FramePool, default_workers
+from mapping.grid import GridBuilder, OccupancyGrid
+from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
+
+ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
+ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
+STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
+                 "planes", "points", "fspf_ms", "kos_ms")
+TABLE_5_2 = ("ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "planes", "fspf_ms", "kos_ms")
+PLANES_TOPIC = "/kosmap/planes/points"
+
+
+# ---- SLAM feeding ---------------------------------------------------------------------------------------------------
+
+class SlamFeed:
+    """Scans into one `Slam`, each with the wheel odometry at its stamp.
+
+    A scan waits until an odometry sample at or after its stamp has been read, or until the log has moved
+    ODOM_WAIT_S past it; the pose it gets depends only on the samples within that window (never on how far
+    the reader ran ahead), so a scan that reaches the feed late (from the worker pool) gets the same prior as
+    one that came at once: serial and parallel runs feed SLAM identical inputs.
+    """
+
+    def __init__(self, slam, use_odom: bool) -> None:
+        self.slam = slam
+        self.use_odom = use_odom
+        self.wheel = WheelOdometry()
+        self.pending: deque[tuple[int, np.ndarray]] = deque()
+        self.added = 0
+        self.no_odom = 0
+
+    def odom(self, rec: Odometry) -> None:
+        self.wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
+
+    def push(self, stamp_ns: int, points: np.ndarray) -> None:
+        self.pending.append((int(stamp_ns), points))
+
+    def advance(self, now_ns: int | None) -> None:
+        """Hand SLAM every pending scan whose odometry is settled (`now_ns` None: the log has ended)."""
+        wait = int(ODOM_WAIT_S * 1e9)
+        while self.pending:
+            stamp, pts = self.pending[0]
+            if self.use_odom and now_ns is not None and not self.wheel.covers(stamp) and now_ns - stamp <= wait:
+                return
+            self.pending.popleft()
+            odom = self._odom_at(stamp) if self.use_odom else None
+            if self.use_odom and odom is None:
+                self.no_odom += 1
+            self.slam.add_scan(stamp, pts, odom)
+            self.added += 1
+            self.wheel.drop_before(stamp - int(2e9))
+
+    def _odom_at(self, stamp: int) -> np.ndarray | None:
+        """Interpolated between the samples around `stamp` (the later within ODOM_WAIT_S); else held at the
+        nearer sample within ODOM_STALE_S; else None."""
+        t, p = self.wheel.t, self.wheel.p
+        wait, stale = int(ODOM_WAIT_S * 1e9), int(ODOM_STALE_S * 1e9)
+        i = bisect_left(t, stamp)
+        after = i < len(t) and t[i] - stamp <= wait
+        if after and i > 0:
+            a = (stamp - t[i - 1]) / (t[i] - t[i - 1]) if t[i] > t[i - 1] else 1.0
+            q = (1.0 - a) * np.array(p[i - 1]) + a * np.array(p[i])
+        elif after and t[i] - stamp <= stale:
+            q = np.array(p[i])
+        elif i > 0 and stamp - t[i - 1] <= stale:
+            q = np.array(p[i - 1])
+        else:
+            return None
+        q[2] = float(se2.wrap(q[2]))
+        return q
+
+
+# ---- the spill: per-step scans on disk between the passes -----------------------------------------------------------
+
+class _Series:
+    """Fixed-width float32 rows appended to a file, with their stamps; read back as a memmap."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.fh = open(path, "wb")
+        self.stamps = array("q")
+        self.width = 0
+        self.meta: dict = {}
+
+    def add(self, stamp_ns: int, row: np.ndarray) -> bool:
+        row = np.ascontiguousarray(row, np.float32).reshape(-1)
+        if self.width == 0:
+            self.width = row.size
+        elif row.size != self.width:
+            return False  # a scan of another shape (a changed laser configuration): skipped
+        self.fh.write(row.tobytes())
+        self.stamps.append(int(stamp_ns))
+        return True
+
+    def add_rows(self, stamp_ns: int, rows: np.ndarray) -> None:
+        """Several rows at once (all with this stamp)."""
+        rows = np.ascontiguousarray(rows, np.float32)
+        if self.width == 0:
+            self.width = rows.shape[1]
+        self.fh.write(rows.tobytes())
+        self.stamps.extend([int(stamp_ns)] * len(rows))
+
+    def __len__(self) -> int:
+        return len(self.stamps)
+
+    def close(self) -> None:
+        if not self.fh.closed:
+            self.fh.close()
+
+    def rows(self) -> np.ndarray:
+        self.close()
+        if not len(self) or self.width == 0:
+            return np.zeros((0, max(self.width, 1)), np.float32)
+        return np.memmap(self.path, np.float32, "r", shape=(len(self), self.width))
+
+
+class Spill:
+    """Temporary files for pass 2: KOS steps (every band, NaN out of view), laser scans, fused scans, plane points."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.kos = _Series(folder / "kos.f32")
+        self.laser = _Series(folder / "laser.f32")
+        self.fused = _Series(folder / "fused.f32")
+        self.planes = _Series(folder / "planes.f32")  # rows of 4: x y z class (base_link); one cloud per index entry
+        self.cloud_index: list[tuple[int, int, int]] = []  # (stamp, first row, rows)
+
+    def add_cloud(self, stamp_ns: int, pts: np.ndarray, cls: np.ndarray) -> None:
+        first = len(self.planes)
+        self.planes.add_rows(stamp_ns, np.column_stack((pts, cls)).astype(np.float32))
+        self.cloud_index.append((stamp_ns, first, len(pts)))
+
+    def close(self) -> None:
+        for s in (self.kos, self.laser, self.fused, self.planes):
+            s.close()
+
+
+# ---- results --------------------------------------------------------------------------------------------------------
+
+@dataclass
+class BuildResult:
+    """What `build` wrote and measured."""
+
+    out: Path
+    metrics: dict
+    files: dict[str, Path] = field(default_factory=dict)
+
+    @property
+    def partial(self) -> bool:
+        return bool(self.metrics.get("partial"))
+
+
+@dataclass
+class Progress:
+    """What `on_progress` sees after each unit of work (a depth frame, or a laser scan in a log without depth)."""
+
+    frames: int
+    scans: int
+    log_s: float
+    total_s: float
+
+
+def _stats(v) -> dict:
+    a = np.asarray(v, np.float64)
+    if not a.size:
+        return {"n": 0, "mean": None, "std": None, "median": None, "p90": None}
+    return {"n": int(a.size), "mean": float(a.mean()), "std": float(a.std()), "median": float(np.median(a)),
+            "p90": float(np.percentile(a, 90))}
+
+
+def _clean(o):
+    """JSON-safe: NaN/inf → None, numpy → Python, Paths → str."""
+    if isinstance(o, dict):
+        return {str(k): _clean(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_clean(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _clean(o.tolist())
+    if isinstance(o, (np.floating, float)):
+        return float(o) if math.isfinite(o) else None
+    if isinstance(o, (np.integer,)):
+        return int(o)
+    if isinstance(o, (np.bool_,)):
+        return bool(o)
+    if isinstance(o, Path):
+        return str(o)
+    return o
+
+
+def _write_text(path: Path, text: str) -> Path:
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path
+
+
+def _planar(tf: Transform | None) -> np.ndarray:
+    if tf is None:
+        return np.zeros(3)
+    return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float)
+
+
+def _merged(base, overrides: dict, what: str):
+    """A stage config with `overrides` applied (from [build] kos_odometry / kos_graph)."""
+    known = {f.name for f in dataclasses.fields(base)}
+    bad = [k for k in overrides if k not in known]
+    if bad:
+        raise ConfigError(f"config [build] {what} has unknown key(s) {', '.join(bad)}; "
+                          f"known: {', '.join(sorted(known))}")
+    return dataclasses.replace(base, **overrides)
+
+
+# ---- the build --------------------------------------------------------------------------------------------------------
+
+def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, blueprint: str | Path | None = None,
+          workers: int | None = None, progress: bool = False, on_progress: Callable[[Progress], None] | None = None,
+          report: bool = True, say: Callable[[str], None] | None = None) -> BuildResult:
+    """Build every map of `log` into `out_dir` (see the module doc); returns the metrics and the files written.
+
+    `workers`: processes for the per-frame stage (None = every core, 0 = serial in this process; the maps are
+    the same). `progress`: a rich progress bar on stderr. `on_progress`: called after each frame (or laser scan
+    in a log without depth); raising KeyboardInterrupt there stops the run like Ctrl-C. `say`: where phase
+    messages go (None = nowhere).
+    """
+    from mapping.slam import Slam
+
+    t_start = time.perf_counter()
+    cpu_start = time.process_time()
+    cfg = cfg or Config()
+    log = Path(log)
+    out = Path(out_dir)
+    say = say or (lambda _m: None)
+    workers = default_workers() if workers is None else int(workers)
+    bcfg = cfg.build
+    if out.exists() and not out.is_dir():
+        raise KosmapError(f"--out {out} is a file; give a folder for the maps and the report")
+    bp_grid = None
+    if blueprint is not None:
+        from mapping.mapio import read_blueprint
+
+        bp_grid = read_blueprint(blueprint, None, cfg.compare.blueprint_dark)  # fails before any work
+    with open_log(log) as lg:
+        info = lg.info()
+        det = detect_topics(info.types(), cfg.topics)
+        counts = {t: info.count(t) for t in info.types()}
+        duration = float(info.duration)
+    has_depth, has_laser = bool(det.depth), bool(det.scan)
+    if not has_depth and not has_laser:
+        raise TopicError(f"{log.name} has neither a depth image topic nor a laser scan topic: nothing to map "
+                         f"(see `kosmap info {log.name}`; name them with --depth-topic / --scan-topic)")
+    bands = [b[0] for b in cfg.kos.bands()]
+    if has_depth and bcfg.slam_scan not in bands:
+        raise ConfigError(f"config [build] slam_scan = {bcfg.slam_scan!r} is not a KOS scan of this config; "
+                          f"choose one of {', '.join(bands)}")
+    kos_ocfg: OdometryConfig = _merged(cfg.odometry, bcfg.kos_odometry, "kos_odometry")
+    kos_gcfg = _merged(cfg.graph, bcfg.kos_graph, "kos_graph")
+
+    out.mkdir(parents=True, exist_ok=True)
+    for stale in ("metrics.json", "report.html", "report.md"):  # a previous run's results must not survive a failure
+        (out / stale).unlink(missing_ok=True)
+    files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
+    spill_dir = Path(tempfile.mkdtemp(prefix=".kosmap-spill-", dir=out))
+    warnings: list[str] = []
+    try:
+        p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings,
+                    Slam(kos_ocfg, kos_gcfg) if has_depth else None,
+                    Slam(cfg.odometry, cfg.graph) if has_laser else None)
+        say(("interrupted: mapping what was read, " if p1["partial"] else "")
+            + f"{p1['frames']} depth frames, {p1['laser_kept']} laser scans read in {p1['seconds']:.1f} s")
+        t_slam = time.perf_counter()
+        results = {}
+        for name, slam in (("kos", p1["kos_slam"]), ("laser", p1["laser_slam"])):
+            if slam is None or not slam.stamps:
+                continue
+            try:
+                results[name] = slam.finish()
+            except KosmapError as e:
+                warnings.append(f"{name} SLAM produced no trajectory: {e}")
+        slam_finish_s = time.perf_counter() - t_slam
+        if not results:
+            raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
+        spill: Spill = p1["spill"]
+        t_maps = time.perf_counter()
+        jobs = _Jobs(workers)
+        try:
+            grids, traj = _pass2(spill, p1, results, cfg, out, files, bands, jobs)
+            maps_s = time.perf_counter() - t_maps
+            say(f"SLAM solved in {slam_finish_s:.1f} s; {len(grids)} maps built and written in {maps_s:.1f} s")
+            t_cmp = time.perf_counter()
+            comparisons, overlays = _compare_all(grids, bp_grid, cfg, out, files, warnings, jobs)
+            compare_s = time.perf_counter() - t_cmp
+        finally:
+            jobs.close()
+        metrics = _metrics(log, det, info_counts=counts, duration=duration, p1=p1, results=results, grids=grids,
+                           traj=traj, comparisons=comparisons, overlays=overlays, cfg=cfg, blueprint=blueprint,
+                           workers=workers, warnings=warnings,
+                           timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
+                                   "maps_s": maps_s, "compare_s": compare_s})
+        metrics["timing"]["total_s"] = time.perf_counter() - t_start
+        metrics["timing"]["cpu_s"] = time.process_time() - cpu_start
+        metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
+                                                if metrics["timing"]["total_s"] > 0 else None)
+        files["metrics"] = _write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+        if report:
+            from mapping.report import write_report
+
+            t_rep = time.perf_counter()
+            files.update(write_report(out, metrics))
+            metrics["timing"]["report_s"] = time.perf_counter() - t_rep
+            metrics["timing"]["total_s"] = time.perf_counter() - t_start
+            metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
+                                                    if metrics["timing"]["total_s"] > 0 else None)
+            files["metrics"] = _write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+        return BuildResult(out, _clean(metrics), files)
+    finally:
+        shutil.rmtree(spill_dir, ignore_errors=True)
+
+
+def _expected_units(det, counts: dict, duration: float, bcfg) -> int:
+    """Depth frames the run will process (or laser scans in a log without depth): the progress bar's total."""
+    if det.depth:
+        n = 0
+        for t in det.depth:
+            c = counts.get(t, 0)
+            n += min(c, int(duration * bcfg.depth_rate) + 1) if bcfg.depth_rate > 0 else c
+        return n
+    c = counts.get(det.scan, 0)
+    return min(c, int(duration * bcfg.laser_rate) + 1) if bcfg.laser_rate > 0 else c
+
+
+def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: int, progress: bool,
+           on_progress, spill_dir: Path, warnings: list[str], kos_slam, laser_slam) -> dict:
+    """Read the log once: frames to the pool, steps and laser scans to SLAM and the spill, stats to stats.csv."""
+    bcfg = cfg.build
+    out = spill_dir.parent
+    spill = Spill(spill_dir)
+    bands = [b[0] for b in cfg.kos.bands()]
+    slam_band = bands.index(bcfg.slam_scan) if det.depth else -1
+    use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
+    kos_feed = SlamFeed(kos_slam, use_odom) if kos_slam is not None else None
+    laser_feed = SlamFeed(laser_slam, use_odom) if laser_slam is not None else None
+    feeds = [f for f in (kos_feed, laser_feed) if f is not None]
+    statics: list[Transforms] = []
+    gt = array("d")  # t, x, y, yaw flattened
+    stats = {k: array("f") for k in TABLE_5_2}
+    state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "laser_mount": None,
+             "laser_meta": None, "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
+             "stop": False, "partial": False}
+    laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
+    cloud_period = int(bcfg.mcap_planes_period * 1e9)
+    run = ScanRun()
+    total = _expected_units(det, counts, duration, bcfg)
+    csv_path = out / "stats.csv.partial"
+    csv_fh = open(csv_path, "w", newline="")
+    writer = csv.writer(csv_fh)
+    writer.writerow(STATS_COLUMNS)
+
+    def keep_planes(item: DepthItem) -> bool:
+        if cloud_period <= 0:
+            return False
+        if state["next_cloud"] is None or item.stamp_ns >= state["next_cloud"] - 1_000_000:  # 1 ms: stamp jitter
+            state["next_cloud"] = item.stamp_ns + cloud_period
+            return True
+        return False
+
+    def on_frame(f: KosFrame) -> None:
+        s = f.stats
+        row = {"ineligible_pct": s.ineligible_pct, "inlier_pct": s.inlier_pct, "dropped_pct": s.dropped_pct,
+               "outlier_pct": s.outlier_pct, "planes": s.planes, "fspf_ms": f.fspf_ms, "kos_ms": f.kos_ms}
+        for k, v in row.items():
+            stats[k].append(float(v))
+        writer.writerow([f.index, f.topic, f"{f.stamp_ns * 1e-9:.6f}", f"{s.ineligible_pct:.3f}", f"{s.inlier_pct:.3f}",
+                         f"{s.dropped_pct:.3f}", f"{s.outlier_pct:.3f}", s.remaining, s.planes, f.n_points,
+                         f"{f.fspf_ms:.3f}", f"{f.kos_ms:.3f}"])
+        if f.planes is not None and len(f.planes.points):
+            pts = f.planes.points
+            cls = f.planes.point_classes()
+            n = bcfg.mcap_plane_points
+            if len(pts) > n:
+                pick = np.sort(np.random.default_rng(f.index).choice(len(pts), n, replace=False))
+                pts, cls = pts[pick], cls[pick]
+            mount = stream.cams[f.topic][1]  # set when the topic's first frame was read, before any result
+            spill.add_cloud(f.stamp_ns, mount.apply(pts.astype(np.float64)), cls)
+        state["frames"] += 1
+        tick()
+
+    bar = task = None
+
+    def tick() -> None:
+        t0, t = state["t0"], state["t"]
+        log_s = (t - t0) * 1e-9 if t0 is not None and t is not None else 0.0
+        if bar is not None:
+            el = time.perf_counter() - t_begin
+            done = state["frames"] if det.depth else state["laser_kept"]
+            bar.update(task, completed=done, rate=f"{done / el:.0f}" if el > 0 else "–",
+                       rt=f"{log_s / el:.1f}" if el > 0 else "–")
+        if on_progress is not None:
+            on_progress(Progress(state["frames"], state["laser_kept"], log_s, duration))
+
+    def on_step(step: KosStep) -> None:
+        ranges = np.stack([step.scans[b].ranges for b in bands])
+        spill.kos.add(step.stamp_ns, ranges)
+        sc = step.scans[bcfg.slam_scan]
+        if kos_feed is not None:
+            o = kos_feed.slam.ocfg
+            kos_feed.push(step.stamp_ns, scan_points_base(sc.ranges, sc.angles, sc.valid(), None, o.min_range, o.max_range))
+        laser = step.laser  # fused here, at the laser map's rate, not for every step (KosStream fuse=False)
+        if laser is not None and bcfg.fused_map and laser_feed is not None:
+            last = state["last_fused"]
+            if last is None or laser.stamp_ns - last >= laser_period - 1_000_000:
+                if state["laser_tf"] is None:
+                    state["laser_tf"] = (lookup_static(statics, "base_link", laser.frame_id)
+                                         or Transform.identity("base_link", laser.frame_id))
+                fused = fuse_with_laser(laser, state["laser_tf"], step.scans[OBSTACLE], KOS_PREFIX + FUSED)
+                if spill.fused.add(fused.stamp_ns, fused.ranges):
+                    state["last_fused"] = fused.stamp_ns
+                    if not spill.fused.meta:
+                        spill.fused.meta = {"angle_min": fused.angle_min, "angle_increment": fused.angle_increment,
+                                            "range_min": fused.range_min, "range_max": fused.range_max,
+                                            "frame_id": fused.frame_id}
+
+    def on_laser(scan: Scan) -> None:
+        state["laser_seen"] += 1
+        last = state["last_laser"]
+        if last is not None and scan.stamp_ns - last < laser_period - 1_000_000:
+            return
+        if state["laser_mount"] is None:
+            state["laser_mount"] = _planar(lookup_static(statics, state["base"], scan.frame_id) or
+                                           lookup_static(statics, "base_link", scan.frame_id))
+            if not statics or lookup_static(statics, state["base"], scan.frame_id) is None:
+                if scan.frame_id.lstrip("/") not in (state["base"], "base_link", ""):
+                    warnings.append(f"no static transform from {state['base']} to {scan.frame_id}; "
+                                    f"the laser is taken as mounted at {state['base']}")
+        if not spill.laser.add(scan.stamp_ns, scan.ranges):
+            return
+        if not spill.laser.meta:
+            spill.laser.meta = {"angle_min": scan.angle_min, "angle_increment": scan.angle_increment,
+                                "range_min": scan.range_min, "range_max": scan.range_max, "frame_id": scan.frame_id,
+                                "topic": scan.topic}
+        state["last_laser"] = scan.stamp_ns
+        state["laser_kept"] += 1
+        o = laser_feed.slam.ocfg
+        laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), state["laser_mount"],
+                                                        o.min_range, o.max_range))
+        if not det.depth:
+            tick()
+
+    # Ctrl-C: finish what was read (a second Ctrl-C aborts)
+    old_handler = None
+    if threading.current_thread() is threading.main_thread():
+        def _sigint(_sig, _frm):
+            state["stop"] = True
+            signal.signal(signal.SIGINT, old_handler or signal.default_int_handler)
+        old_handler = signal.signal(signal.SIGINT, _sigint)
+
+    pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None) if det.depth else None
+    stream = None
+    if pool is not None:
+        min_period = int(1e9 / bcfg.depth_rate) if bcfg.depth_rate > 0 else 0
+        stream = KosStream(det, cfg, run, pool, on_frame=on_frame, keep_planes=keep_planes, min_period_ns=min_period,
+                           fuse=False)
+    t_begin = time.perf_counter()
+    cpu0 = time.process_time()
+    lg = open_log(log)
+    try:
+        if progress:
+            from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+            from rich.progress import Progress as Bar
+
+            bar = Bar(TextColumn("[bold]build[/]"), BarColumn(), MofNCompleteColumn(),
+                      TextColumn("{task.fields[unit]}, {task.fields[rate]}/s, {task.fields[rt]}× real time"),
+                      TimeElapsedColumn(), TextColumn("ETA"), TimeRemainingColumn(), transient=True)
+            bar.start()
+            task = bar.add_task("build", total=total, rate="–", rt="–",
+                                unit="depth frames" if det.depth else "laser scans")
+        try:
+            for rec in lg.read(det.wanted()):
+                if state["stop"]:
+                    raise KeyboardInterrupt
+                st = rec.stamp_ns
+                if st and (state["t"] is None or st > state["t"]):
+                    state["t"] = st
+                    if state["t0"] is None:
+                        state["t0"] = st
+                if isinstance(rec, Odometry):
+                    if rec.topic == det.ground_truth:
+                        gt.extend((rec.stamp_ns * 1e-9, rec.x, rec.y, rec.yaw))
+                        continue
+                    if rec.topic == det.odom:
+                        if state["base"] == "base_link" and rec.child_frame_id:
+                            state["base"] = rec.child_frame_id.lstrip("/") or "base_link"
+                        for f in feeds:
+                            f.odom(rec)
+                elif isinstance(rec, Transforms) and rec.static:
+                    statics.append(rec)
+                elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
+                    on_laser(rec)
+                if stream is not None:
+                    for step in stream.feed(rec):
+                        on_step(step)
+                for f in feeds:
+                    f.advance(state["t"])
+        except KeyboardInterrupt:
+            state["partial"] = True
+            if pool is not None:
+                pool.close(cancel=True)
+        if not state["partial"] and stream is not None:
+            for step in stream.flush():
+                on_step(step)
+        for f in feeds:
+            f.advance(None)
+        run.warnings.extend(lg.warnings)
+    finally:
+        lg.close()
+        if pool is not None:
+            pool.close(cancel=True)
+        if bar is not None:
+            bar.stop()
+        if old_handler is not None:
+            signal.signal(signal.SIGINT, old_handler)
+        csv_fh.close()
+        spill.close()
+    os.replace(csv_path, out / "stats.csv")
+    warnings.extend(run.warnings)
+    for name, f in (("KOS", kos_feed), ("laser", laser_feed)):
+        if f is not None and f.no_odom:
+            warnings.append(f"{f.no_odom} {name} scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it")
+    g = np.asarray(gt, np.float64).reshape(-1, 4)
+    t0, t = state["t0"], state["t"]
+    return {"spill": spill, "frames": state["frames"], "laser_kept": state["laser_kept"],
+            "laser_seen": state["laser_seen"], "partial": state["partial"],
+            "seconds": time.perf_counter() - t_begin, "cpu_s": time.process_time() - cpu0,
+            "log_s": (t - t0) * 1e-9 if t0 is not None and t is not None else 0.0, "t0_ns": t0,
+            "kos_slam": kos_slam, "laser_slam": laser_slam, "laser_mount": state["laser_mount"],
+            "gt": g, "stats": {k: np.asarray(v) for k, v in stats.items()}, "run": run, "statics": statics,
+            "slam_band": slam_band, "total": total}
+
+
+# ---- pass 2: grids from the optimised poses, the MCAP ------------------------------------------------------------
+
+class _Jobs:
+    """Independent jobs (one grid, one comparison) in `workers` forked processes, or here when workers = 0;
+    results in submission order. The jobs read the spill from disk, so nothing large is copied to them."""
+
+    def __init__(self, workers: int) -> None:
+        self.ex = None
+        if workers > 0:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor
+
+            ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
+            self.ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=signal.signal,
+                                          initargs=(signal.SIGINT, signal.SIG_IGN))
+
+    def submit(self, fn, *args):
+        if self.ex is None:
+            return _Done(fn(*args))
+        return self.ex.submit(fn, *args)
+
+    def close(self) -> None:
+        if self.ex is not None:
+            self.ex.shutdown(wait=True, cancel_futures=True)
+
+
+class _Done:
+    def __init__(self, v) -> None:
+        self.v = v
+
+    def result(self):
+        return self.v
+
+
+def _scan_of(meta: dict, stamp: int, ranges: np.ndarray, topic: str = "") -> Scan:
+    return Scan(int(stamp), np.asarray(ranges, np.float32), meta["angle_min"], meta["angle_increment"],
+                meta["range_min"], meta["range_max"], meta.get("frame_id", ""), topic)
+
+
+def _grid_job(gcfg, mount, path: str, shape: tuple, band: tuple | None, meta: dict, stamps: np.ndarray,
+              poses: np.ndarray) -> OccupancyGrid:
+    """One log-odds grid from spilled scans (rows of `path`; band k of B per row when `band` = (k, B))."""
+    rows = np.memmap(path, np.float32, "r", shape=shape)
+    if band is not None:
+        rows = rows.reshape(shape[0], band[1], -1)[:, band[0]]
+    b = GridBuilder(gcfg, mount)
+    for s in range(len(stamps)):
+        b.add(poses[s], _scan_of(meta, stamps[s], rows[s]))
+    return b.to_occupancy()
+
+
+def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files: dict, bands: list[str],
+           jobs: _Jobs) -> tuple[dict, dict]:
+    """Every grid from the spill and the optimised poses (one job per map, while this process writes the MCAP);
+    maps (PNG, PGM+YAML), trajectories (TUM), the MCAP."""
+    from backend.trajio import write_tum
+    from mapping.mapio import grid_picture, write_map_server, write_png
+
+    bcfg = cfg.build
+    traj = {name: {"stamps_ns": res.stamps_ns, "poses": res.poses} for name, res in results.items()}
+    kos_stamps = np.asarray(spill.kos.stamps, np.int64)
+    bear = p1["run"].bearings
+    kos_meta = None
+    if bear is not None:
+        kos_meta = {"angle_min": bear.angle_min, "angle_increment": bear.angle_increment,
+                    "range_min": cfg.depth.min_depth, "range_max": cfg.depth.max_depth, "frame_id": "base_link"}
+    laser_mount = tuple(p1["laser_mount"]) if p1["laser_mount"] is not None else (0.0, 0.0, 0.0)
+
+    def poses_at(name: str, stamps: np.ndarray) -> np.ndarray:
+        r = results[name]
+        if np.array_equal(r.stamps_ns, stamps):
+            return r.poses
+        return se2.interpolate(r.stamps_ns.astype(np.float64), r.poses, stamps.astype(np.float64))
+
+    specs: list[tuple[str, dict, tuple]] = []  # (name, info, job args)
+    if len(kos_stamps) and "kos" in results:
+        poses = poses_at("kos", kos_stamps)
+        for k, b in enumerate(bands):
+            specs.append((f"kos_{b}", {"source": "kos", "level": b, "poses": "kos",
+                                       "label": f"KOS {b}" + (" (SLAM scan)" if b == bcfg.slam_scan else "")},
+                          ((0.0, 0.0, 0.0), spill.kos, (k, len(bands)), kos_meta, kos_stamps, poses)))
+    if len(kos_stamps) and "laser" in results and bcfg.kos_on_laser_poses:
+        specs.append(("kos_obstacle_at_laser_poses", {"source": "kos", "level": OBSTACLE, "poses": "laser",
+                                                      "label": "KOS obstacle at the laser's poses"},
+                      ((0.0, 0.0, 0.0), spill.kos, (bands.index(OBSTACLE), len(bands)), kos_meta, kos_stamps,
+                       poses_at("laser", kos_stamps))))
+    if "laser" in results and len(spill.laser):
+        st = np.asarray(spill.laser.stamps, np.int64)
+        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "label": "laser"},
+                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st))))
+    if "laser" in results and len(spill.fused):
+        st = np.asarray(spill.fused.stamps, np.int64)
+        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser",
+                                "label": "KOS obstacle fused with the laser"},
+                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st))))
+    futures = []
+    for name, info, (mount, series, band, meta, st, poses) in specs:
+        series.close()
+        futures.append(jobs.submit(_grid_job, cfg.grid, mount, str(series.path), (len(series), series.width), band,
+                                   meta, st, poses))
+
+    for name, tr in traj.items():
+        files[f"trajectory_{name}"] = write_tum(out / f"trajectory_{name}.tum", tr["stamps_ns"] * 1e-9, tr["poses"])
+    g = p1["gt"]
+    if len(g):
+        files["ground_truth"] = write_tum(out / "ground_truth.tum", g[:, 0], g[:, 1:4])
+    res = results.get("kos") or results.get("laser")
+    ok = np.isfinite(res.odom_poses).all(axis=1)
+    if ok.sum() >= 2:  # the wheel odometry at the scans' stamps: the baseline SLAM should beat
+        files["odometry"] = write_tum(out / "odometry.tum", res.stamps[ok], res.odom_poses[ok])
+
+    grids: dict[str, dict] = {}
+
+    def collect() -> dict:
+        for (name, info, _), fut in zip(specs, futures):
+            grid = fut.result()
+            tr = traj.get(info["poses"])
+            png = write_png(grid_picture(grid, None if tr is None else tr["poses"]), out / f"map_{name}.png")
+            yml = write_map_server(grid, out / f"map_{name}.yaml")
+            files[f"map_{name}"] = yml
+            grids[name] = {"grid": grid, "png": png, "yaml": yml, **info,
+                           "occupied_cells": int((grid.data >= 65).sum()), "known_cells": int((grid.data >= 0).sum())}
+        return grids
+
+    files["mcap"] = _write_mcap(out / "kosmap.mcap", spill, p1, results, collect, bands, kos_meta, kos_stamps)
+    return grids, traj
+
+
+def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_done: Callable[[], dict],
+                bands: list[str], kos_meta, kos_stamps) -> Path:
+    """One MCAP for Foxglove: KOS scans per level, the laser and fused scans used, plane points (a subsample),
+    map → base_link on /tf (from the KOS SLAM, else the laser's), the paths, and every map."""
+    from frontend.logs.writer import McapWriter
+
+    primary = "kos" if "kos" in results else "laser"
+    pres = results[primary]
+    events: list[tuple[int, int, int]] = []  # (stamp, kind, index), written in time order
+    events += [(int(s), 0, i) for i, s in enumerate(kos_stamps)]
+    events += [(int(s), 1, i) for i, s in enumerate(spill.laser.stamps)]
+    events += [(int(s), 2, i) for i, s in enumerate(spill.fused.stamps)]
+    events += [(int(s), 3, i) for i, (s, _, _) in enumerate(spill.cloud_index)]
+    events += [(int(s), 4, i) for i, s in enumerate(pres.stamps_ns)]
+    events.sort()
+    kos_rows = spill.kos.rows().reshape(len(spill.kos), len(bands), -1) if len(spill.kos) else None
+    laser_rows = spill.laser.rows() if len(spill.laser) else None
+    fused_rows = spill.fused.rows() if len(spill.fused) else None
+    plane_rows = spill.planes.rows() if len(spill.planes) else None
+    t_end = int(max([e[0] for e in events] or [0]))
+    with McapWriter(path) as w:
+        for rec in p1["statics"]:
+            w.write(rec, "/tf_static")
+        for stamp, kind, i in events:
+            if kind == 0:
+                for k, b in enumerate(bands):
+                    w.write(_scan_of(kos_meta, stamp, kos_rows[i, k]), KOS_PREFIX + b)
+            elif kind == 1:
+                w.write(_scan_of(spill.laser.meta, stamp, laser_rows[i]), spill.laser.meta.get("topic") or "/scan")
+            elif kind == 2:
+                w.write(_scan_of(spill.fused.meta, stamp, fused_rows[i]), KOS_PREFIX + FUSED)
+            elif kind == 3:
+                _, first, n = spill.cloud_index[i]
+                rows = np.asarray(plane_rows[first:first + n])
+                w.write_pointcloud(PLANES_TOPIC, stamp, "base_link", rows[:, :3], {"class": rows[:, 3]})
+            else:
+                x, y, yaw = pres.poses[i]
+                tf = Transform("map", "base_link", np.array([x, y, 0.0]), yaw_to_quat(float(yaw)), stamp)
+                w.write(Transforms(stamp, (tf,), False, "/tf"), "/tf")
+        for name, res in results.items():
+            step = max(1, len(res.poses) // 2000)
+            w.write_path(f"/kosmap/path/{name}", t_end, "map", res.poses[::step], res.stamps_ns[::step])
+        g = p1["gt"]
+        if len(g):
+            step = max(1, len(g) // 2000)
+            w.write_path("/kosmap/path/ground_truth", t_end, "map", g[::step, 1:4], (g[::step, 0] * 1e9).astype(np.int64))
+        for name, gi in grids_when_done().items():
+            gr: OccupancyGrid = gi["grid"]
+            w.write_grid(f"/kosmap/map/{name}", t_end, "map", gr.data, gr.resolution, gr.origin)
+    return path
+
+
+# ---- comparisons --------------------------------------------------------------------------------------------------
+
+def _compare_job(a: OccupancyGrid, b: OccupancyGrid, ccfg) -> tuple[dict | None, np.ndarray | None, str | None]:
+    from mapping.compare import CompareError, compare, overlay_picture
+
+    try:
+        c = compare(a, b, ccfg)
+    except CompareError as e:
+        return None, None, str(e)
+    return c.metrics, overlay_picture(c), None
+
+
+def _compare_all(grids: dict, bp: OccupancyGrid | None, cfg: Config, out: Path, files: dict, warnings: list[str],
+                 jobs: _Jobs) -> tuple[dict, dict]:
+    """KOS vs blueprint, laser vs blueprint, KOS vs laser (and the extra maps vs blueprint), one job each."""
+    from mapping.mapio import write_png
+
+    bcfg = cfg.build
+    kos_main = f"kos_{bcfg.slam_scan}"
+    pairs: list[tuple[str, str]] = []
+    if bp is not None:
+        for name in grids:
+            if name == kos_main or name in ("laser", "fused", "kos_obstacle_at_laser_poses") or \
+                    (bcfg.compare_levels and name.startswith("kos_")):
+                pairs.append((name, "blueprint"))
+    if kos_main in grids and "laser" in grids:
+        pairs.append((kos_main, "laser"))
+    futures = [jobs.submit(_compare_job, grids[a]["grid"], bp if b == "blueprint" else grids[b]["grid"], cfg.compare)
+               for a, b in pairs]
+    comparisons, overlays = {}, {}
+    for (a, b), fut in zip(pairs, futures):
+        key = f"{a}_vs_{b}"
+        metrics, img, err = fut.result()
+        if err is not None:
+            warnings.append(f"{key}: {err}")
+            continue
+        comparisons[key] = {"a": a, "b": b, **metrics}
+        overlays[key] = files[f"overlay_{key}"] = write_png(img, out / f"overlay_{key}.png")
+    return comparisons, overlays
+
+
+# ---- metrics ------------------------------------------------------------------------------------------------------
+
+def _metrics(log: Path, det, info_counts: dict, duration: float, p1: dict, results: dict, grids: dict, traj: dict,
+             comparisons: dict, overlays: dict, cfg: Config, blueprint, workers: int, warnings: list[str],
+             timing: dict) -> dict:
+    from backend import metrics as M
+    from mapping.slam import evaluate, summary
+
+    st = p1["stats"]
+    frames = p1["frames"]
+    slam = {}
+    g = p1["gt"]
+    for name, res in results.items():
+        s = summary(res)
+        s.pop("warnings", None)
+        acc = {}
+        if len(g) >= 2:
+            try:
+                acc = evaluate(res, ground_truth=(g[:, 0], g[:, 1:4]))
+                ok = np.isfinite(res.odom_poses).all(axis=1)
+                if ok.sum() >= 2:
+                    acc["ate_odometry"] = M.ate(res.stamps[ok], res.odom_poses[ok], g[:, 0], g[:, 1:4])
+            except KosmapError as e:
+                warnings.append(f"{name} trajectory not scored against the ground truth: {e}")
+        slam[name] = {**s, **acc, "scans_in": int(len(res.stamps_ns))}
+    pass1 = timing["read_and_frames_s"]
+    fspf, kos = st["fspf_ms"], st["kos_ms"]
+    t52 = {k: _stats(st[k]) for k in TABLE_5_2}
+    t55 = {"fspf_ms": _stats(fspf), "kos_ms": _stats(kos),
+           "per_core_hz": 1000.0 / float(np.mean(fspf + kos)) if frames else None,
+           "system_hz": frames / pass1 if pass1 > 0 and frames else None,
+           "map_creation_s": timing["maps_s"] + timing["slam_finish_s"],
+           "workers": workers}
+    depth_in_log = sum(info_counts.get(t, 0) for t in det.depth)
+    return {
+        "kosmap": "build", "partial": p1["partial"],
+        "log": {"path": str(log), "duration_s": duration, "read_s": p1["log_s"], "topics": det.as_dict()},
+        "interrupted_at_s": p1["log_s"] if p1["partial"] else None,
+        "sources": {"kos": bool(det.depth), "laser": bool(det.scan), "ground_truth": bool(len(g)),
+                    "blueprint": None if blueprint is None else str(blueprint)},
+        "frames": {"processed": frames, "in_log": depth_in_log, "cameras": len(det.depth),
+                   "steps": len(p1["spill"].kos), "depth_rate_hz": cfg.build.depth_rate,
+                   "laser_scans_in_log": info_counts.get(det.scan, 0) if det.scan else 0,
+                   "laser_scans_read": p1["laser_seen"], "laser_scans_used": p1["laser_kept"],
+                   "laser_rate_hz": cfg.build.laser_rate},
+        "table_5_2": t52, "table_5_5": t55,
+        "timing": {**timing, "read_and_frames_cpu_s": p1["cpu_s"], "log_s": p1["log_s"]},
+        "slam": slam, "slam_scan": cfg.build.slam_scan,
+        "maps": {k: {kk: v for kk, v in gi.items() if kk != "grid"} | {
+            "width": gi["grid"].width, "height": gi["grid"].height, "resolution": gi["grid"].resolution,
+            "origin": list(gi["grid"].origin)} for k, gi in grids.items()},
+        "comparisons": comparisons, "overlays": {k: str(v) for k, v in overlays.items()},
+        "config": config_dict(cfg), "warnings": list(dict.fromkeys(warnings)),
+    }

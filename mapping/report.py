@@ -1,0 +1,365 @@
+"""The report of a `kosmap build` run: report.html (self-contained, images embedded) and report.md (beside the PNGs).
+
+Read top to bottom it says what was mapped and how well: headline numbers, the maps side by side, the overlays of
+KOS vs laser vs blueprint, the trajectories (with ATE when the log has ground truth), the thesis's Table 5.2
+(plane filtering per frame) and Table 5.5 (speed) analogues, and every comparison metric. Everything comes from
+metrics.json and the files beside it, so a report can be rewritten from a finished run (`write_report`).
+"""
+
+from __future__ import annotations
+
+import base64
+import html
+import os
+from pathlib import Path
+
+import numpy as np
+
+TOL = "0.10"  # the tolerance of the headline numbers (the issue's acceptance)
+
+
+def _f(v, digits: int = 3, unit: str = "") -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+        return f"{v}{unit}"
+    try:
+        return f"{float(v):.{digits}f}{unit}"
+    except (TypeError, ValueError):
+        return str(v)
+
+
+def _label(name: str, metrics: dict) -> str:
+    if name == "blueprint":
+        return "blueprint"
+    m = metrics.get("maps", {}).get(name, {})
+    return m.get("label", name)
+
+
+# ---- the figures ----------------------------------------------------------------------------------------------------
+
+def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
+    if not path.is_file():
+        return None
+    from backend.trajio import read_tum
+
+    t, p = read_tum(path)
+    return (t, p) if len(t) else None
+
+
+def trajectory_figure(out: Path, metrics: dict) -> Path | None:
+    """trajectories.png: every trajectory of the run, in the ground truth's frame over the blueprint when the log
+    has ground truth (each aligned to it as ATE aligns it), else in the laser's frame, else as it is."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from backend.metrics import align_se2, associate
+
+    tr = {name: _read_tum(out / f"trajectory_{name}.tum") for name in ("kos", "laser")}
+    tr["odometry"] = _read_tum(out / "odometry.tum")
+    tr = {k: v for k, v in tr.items() if v is not None}
+    gt = _read_tum(out / "ground_truth.tum")
+    if not tr:
+        return None
+    ref_name, ref = ("ground truth", gt) if gt is not None else (("laser SLAM", tr["laser"]) if "laser" in tr else (None, None))
+    fig, ax = plt.subplots(figsize=(9, 5.2), dpi=110)
+    bp = metrics.get("sources", {}).get("blueprint")
+    if bp and gt is not None:
+        try:
+            from mapping.mapio import read_blueprint
+
+            g = read_blueprint(bp)
+            walls = (g.data[::-1] >= 65).astype(float)
+            x0, y0 = g.origin[0], g.origin[1]
+            ext = (x0, x0 + g.width * g.resolution, y0, y0 + g.height * g.resolution)
+            ax.imshow(np.ma.masked_where(walls == 0, walls), cmap="Greys", vmin=0, vmax=2.5, extent=ext,
+                      interpolation="nearest")
+        except Exception:  # noqa: BLE001 - the figure is still useful without its backdrop
+            pass
+    style = {"kos": ("tab:red", "KOS SLAM"), "laser": ("tab:blue", "laser SLAM"), "odometry": ("tab:orange", "wheel odometry")}
+    if gt is not None:
+        ax.plot(gt[1][:, 0], gt[1][:, 1], color="k", lw=2.2, alpha=0.35, label="ground truth")
+    for name, (t, p) in tr.items():
+        xy = p[:, :2]
+        if ref is not None and not (name == "laser" and ref_name == "laser SLAM"):
+            ie, ir = associate(t, ref[0], 0.02)
+            if len(ie) >= 3:
+                R, tt = align_se2(xy[ie], ref[1][ir, :2])
+                xy = xy @ R.T + tt
+        c, lab = style.get(name, ("tab:green", name))
+        ax.plot(xy[:, 0], xy[:, 1], color=c, lw=1.0, label=lab, ls="--" if name == "odometry" else "-")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    where = {"ground truth": "aligned to the ground truth (as ATE aligns them), over the blueprint",
+             "laser SLAM": "aligned to the laser SLAM's trajectory"}.get(ref_name, "each in its own frame")
+    ax.set_title(f"Trajectories, {where}", fontsize=10)
+    ax.legend(loc="best", fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = out / "trajectories.png"
+    tmp = path.with_name("trajectories.partial.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def frames_figure(out: Path) -> Path | None:
+    """frames.png: per-frame FSPF+ / KOS time and the inlier / outlier / ineligible shares over the log."""
+    p = out / "stats.csv"
+    if not p.is_file():
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    d = np.genfromtxt(p, delimiter=",", names=True, dtype=None, encoding="utf-8")
+    if d.size < 2:
+        return None
+    t = d["stamp"] - d["stamp"][0]
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(9, 4.6), dpi=110, sharex=True)
+    for key, c, lab in (("ineligible_pct", "0.5", "ineligible"), ("inlier_pct", "tab:green", "inliers (kept planes)"),
+                        ("dropped_pct", "tab:olive", "dropped (floor, ceiling)"), ("outlier_pct", "tab:red", "outliers")):
+        a1.plot(t, d[key], lw=0.7, color=c, label=lab)
+    a1.set_ylabel("% of pixels")
+    a1.legend(fontsize=7, ncol=4, loc="upper right")
+    a1.grid(alpha=0.3)
+    a2.plot(t, d["fspf_ms"], lw=0.6, color="tab:blue", label="FSPF+ ms")
+    a2.plot(t, d["kos_ms"], lw=0.6, color="tab:purple", label="KOS ms")
+    a2.set_ylabel("ms per frame")
+    a2.set_xlabel("log time (s)")
+    a2.legend(fontsize=7, loc="upper right")
+    a2.grid(alpha=0.3)
+    fig.tight_layout()
+    path = out / "frames.png"
+    tmp = path.with_name("frames.partial.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+# ---- the content, once, for both formats ----------------------------------------------------------------------------
+
+def headline(metrics: dict) -> dict:
+    """The numbers a person looks at first: F1 at 0.10 m of each comparison, ATE of each SLAM, real-time factor."""
+    c = metrics.get("comparisons", {})
+    h = {"f1": {k: v["tolerances"][TOL]["f1"] for k, v in c.items() if TOL in v.get("tolerances", {})},
+         "ate": {k: s["ate"]["rmse"] for k, s in metrics.get("slam", {}).items() if s.get("ate")},
+         "realtime_factor": metrics.get("timing", {}).get("realtime_factor"),
+         "total_s": metrics.get("timing", {}).get("total_s"), "partial": metrics.get("partial", False)}
+    return h
+
+
+def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path | None) -> list[tuple]:
+    """The report as a list of blocks: ("h", level, text), ("p", text), ("table", header, rows), ("images", [(path,
+    caption)]), ("warn", text)."""
+    m = metrics
+    B: list[tuple] = []
+    log = m["log"]
+    name = Path(log["path"]).name
+    B.append(("h", 1, f"kosmap build: {name}"))
+    if m.get("partial"):
+        B.append(("warn", f"PARTIAL RESULT: the run was interrupted after {_f(m.get('interrupted_at_s'), 1)} s of "
+                          f"{_f(log['duration_s'], 1)} s of log. Everything below covers only the part that was read."))
+    src = m["sources"]
+    fr = m["frames"]
+    what = []
+    if src["kos"]:
+        what.append(f"{fr['processed']} depth frames of {fr['cameras']} camera(s) (of {fr['in_log']} in the log"
+                    + (f", at most {fr['depth_rate_hz']:g} Hz per camera" if fr["depth_rate_hz"] else "")
+                    + f") through FSPF+ and KOS, giving {fr['steps']} KOS steps; SLAM on the '{m['slam_scan']}' scan")
+    if src["laser"]:
+        what.append(f"{fr['laser_scans_used']} laser scans (of {fr['laser_scans_in_log']}"
+                    + (f", at most {fr['laser_rate_hz']:g} Hz" if fr["laser_rate_hz"] else "") + ") through SLAM")
+    B.append(("p", f"Log: {log['path']} ({_f(log['duration_s'], 1)} s). " + "; ".join(what) + ". "
+              + ("Ground truth: yes (ATE below). " if src["ground_truth"] else "No ground truth in the log. ")
+              + (f"Blueprint: {src['blueprint']}." if src["blueprint"] else "No blueprint given.")))
+    h = headline(m)
+    rows = []
+    for key, f1 in h["f1"].items():
+        c = m["comparisons"][key]
+        rows.append([f"{_label(c['a'], m)} vs {_label(c['b'], m)}", "F1 at 0.10 m", _f(f1)])
+    for k, v in h["ate"].items():
+        rows.append([f"{'KOS' if k == 'kos' else 'laser'} SLAM trajectory", "ATE RMSE", _f(v, 3, " m")])
+    t = m["timing"]
+    rows.append(["whole run", "wall time", f"{_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log "
+                 f"({_f(t.get('realtime_factor'), 1)}× real time, {m['table_5_5']['workers']} worker process(es))"])
+    B.append(("h", 2, "Headline"))
+    B.append(("table", ["what", "measure", "value"], rows))
+
+    # maps
+    maps = m.get("maps", {})
+    B.append(("h", 2, "Maps"))
+    B.append(("p", "Each map is a log-odds occupancy grid (white free, black occupied, grey unknown) built from the "
+                   "optimised poses of the SLAM named in its caption; the blue line is that trajectory. "
+                   "Files: map_<name>.png for people, map_<name>.pgm + .yaml for ROS map_server."))
+    order = sorted(maps, key=lambda k: (k != f"kos_{m['slam_scan']}", k != "laser", k))
+    B.append(("images", [(out / Path(maps[k]["png"]).name,
+                          f"{maps[k].get('label', k)} — {maps[k]['width']}×{maps[k]['height']} cells of "
+                          f"{maps[k]['resolution']:g} m, poses from the {maps[k].get('poses')} SLAM") for k in order]))
+
+    # overlays
+    comps = m.get("comparisons", {})
+    if comps:
+        B.append(("h", 2, "Overlays and comparison"))
+        B.append(("p", "Map A (red) aligned onto reference B (green); black where they agree within the smallest "
+                       "tolerance; pale cells are occupied but unscored (inside thick walls). Precision: share of A's "
+                       "wall cells with a B wall within the tolerance; recall: the same from B to A; coverage: share "
+                       "of B's walls that A observed at all (a blueprint's rooms the robot never looked into lower "
+                       "recall, not precision); 'recall of observed' is the recall over those walls only."))
+        imgs = [(out / f"overlay_{k}.png", f"A = {_label(c['a'], m)}, B = {_label(c['b'], m)}") for k, c in comps.items()]
+        B.append(("images", imgs))
+        for k, c in comps.items():
+            rows = []
+            for tol, v in c["tolerances"].items():
+                rows.append([f"{float(tol):.2f} m", _f(v["precision"]), _f(v["recall"]), _f(v["f1"]), _f(v["coverage"]),
+                             _f(v["recall_observed"])])
+            al = c["alignment"]
+            B.append(("h", 3, f"{_label(c['a'], m)} vs {_label(c['b'], m)}"))
+            B.append(("table", ["tolerance", "precision", "recall", "F1", "coverage", "recall of observed"], rows))
+            fr_ = c["free"]
+            B.append(("p", (f"Alignment A→B: x {_f(al.get('x'), 3)} m, y {_f(al.get('y'), 3)} m, yaw "
+                            f"{_f(al.get('yaw_deg'), 2)}°, RMS {_f(al.get('rms'), 3)} m. " if al.get("aligned") else
+                            "Not aligned. ")
+                      + f"Wall distance A→B mean {_f(c['distance_a_to_b']['mean'])} m (median "
+                        f"{_f(c['distance_a_to_b']['median'])}), B→A mean {_f(c['distance_b_to_a']['mean'])} m. "
+                      + f"Free space agreement {_f(fr_['agreement'])}, IoU {_f(fr_['iou'])}."))
+
+    # trajectories
+    slam = m.get("slam", {})
+    if slam:
+        B.append(("h", 2, "Trajectories and SLAM"))
+        if traj_png is not None:
+            B.append(("images", [(traj_png, "trajectories")]))
+        rows = []
+        for k, s in slam.items():
+            sec = s.get("seconds", {})
+            rows.append([f"{'KOS' if k == 'kos' else 'laser'} SLAM", s["scans"], s["keyframes"], s["loops"],
+                         _f(s.get("ate", {}).get("rmse"), 3), _f(s.get("ate", {}).get("max"), 3),
+                         _f(s.get("ate_frontend", {}).get("rmse"), 3), _f(s.get("ate_odometry", {}).get("rmse"), 3),
+                         _f(sum(v for v in sec.values()), 1)])
+        B.append(("table", ["source", "scans", "keyframes", "loops", "ATE RMSE (m)", "ATE max (m)",
+                            "front end alone (m)", "wheel odometry (m)", "SLAM CPU (s)"], rows))
+        if not src["ground_truth"]:
+            B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))
+
+    # Table 5.2 / 5.5
+    if src["kos"] and m["frames"]["processed"]:
+        t52 = m["table_5_2"]
+        B.append(("h", 2, "Plane filtering per frame (thesis Table 5.2)"))
+        rows = [[lab, _f(t52[k]["mean"], 2), _f(t52[k]["std"], 2), _f(t52[k]["median"], 2)]
+                for k, lab in (("ineligible_pct", "ineligible %"), ("inlier_pct", "inlier % (planes kept)"),
+                               ("dropped_pct", "dropped % (floor, ceiling planes)"), ("outlier_pct", "outlier %"),
+                               ("planes", "planes per frame"), ("fspf_ms", "FSPF+ ms"), ("kos_ms", "KOS ms"))]
+        B.append(("table", ["per frame", "mean", "std", "median"], rows))
+        if frames_png is not None:
+            B.append(("images", [(frames_png, "per frame over the log (stats.csv)")]))
+        t55 = m["table_5_5"]
+        B.append(("h", 2, "Speed (thesis Table 5.5)"))
+        rows = [["FSPF+ per frame (one core)", f"{_f(t55['fspf_ms']['mean'], 2)} ms (median {_f(t55['fspf_ms']['median'], 2)})"],
+                ["KOS per frame, all levels (one core)", f"{_f(t55['kos_ms']['mean'], 2)} ms (median {_f(t55['kos_ms']['median'], 2)})"],
+                ["frames per second per core", _f(t55["per_core_hz"], 1, " Hz")],
+                ["system: frames per second read and processed", f"{_f(t55['system_hz'], 1)} Hz with {t55['workers']} worker process(es)"],
+                ["map creation (SLAM solve + grids)", _f(t55["map_creation_s"], 2, " s")],
+                ["comparisons", _f(t.get("compare_s"), 2, " s")],
+                ["whole run", f"{_f(t.get('total_s'), 1)} s = {_f(t.get('realtime_factor'), 1)}× real time"]]
+        B.append(("table", ["stage", "time"], rows))
+    warns = m.get("warnings", [])
+    if warns:
+        B.append(("h", 2, "Warnings"))
+        B.append(("list", warns))
+    B.append(("h", 2, "Files"))
+    B.append(("list", ["map_<name>.png / .pgm / .yaml: the maps", "trajectory_<source>.tum (TUM, for evo)"
+                       + (", ground_truth.tum" if src["ground_truth"] else ""),
+                       "stats.csv: per-frame Table 5.2 columns and timings", "kosmap.mcap: KOS scans, laser, plane "
+                       "points, /tf, paths and maps for Foxglove", "metrics.json: every number here",
+                       "config.toml: the effective configuration"]))
+    return B
+
+
+# ---- rendering --------------------------------------------------------------------------------------------------------
+
+def _md(blocks: list[tuple], out: Path) -> str:
+    lines = []
+    for b in blocks:
+        if b[0] == "h":
+            lines += ["#" * b[1] + " " + b[2], ""]
+        elif b[0] == "p":
+            lines += [b[1], ""]
+        elif b[0] == "warn":
+            lines += [f"> **{b[1]}**", ""]
+        elif b[0] == "list":
+            lines += [f"- {x}" for x in b[1]] + [""]
+        elif b[0] == "table":
+            lines += ["| " + " | ".join(b[1]) + " |", "|" + "---|" * len(b[1])]
+            lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in b[2]] + [""]
+        elif b[0] == "images":
+            for p, cap in b[1]:
+                lines += [f"![{cap}]({Path(p).name})", f"*{cap}*", ""]
+    return "\n".join(lines)
+
+
+def _b64(p: Path) -> str:
+    return "data:image/png;base64," + base64.b64encode(Path(p).read_bytes()).decode()
+
+
+CSS = """
+body{font-family:system-ui,-apple-system,Segoe UI,Roboto,sans-serif;margin:24px auto;max-width:1200px;color:#222;padding:0 16px}
+h1{font-size:1.6em;margin-bottom:.3em} h2{border-bottom:1px solid #ddd;padding-bottom:4px;margin-top:1.6em}
+table{border-collapse:collapse;margin:8px 0 14px} td,th{border:1px solid #ccc;padding:4px 10px;text-align:left}
+th{background:#f3f3f3} td:not(:first-child){font-variant-numeric:tabular-nums}
+.warn{background:#fde8e8;border:2px solid #c00;color:#900;padding:10px 14px;font-weight:600;border-radius:4px}
+.grid{display:flex;flex-wrap:wrap;gap:14px} figure{margin:0;flex:1 1 360px;max-width:100%}
+figure img{width:100%;border:1px solid #ccc;image-rendering:pixelated;background:#a0a0a0}
+figcaption{font-size:.85em;color:#555;margin-top:3px}
+"""
+
+
+def _html(blocks: list[tuple]) -> str:
+    e = html.escape
+    parts = []
+    title = next((b[2] for b in blocks if b[0] == "h" and b[1] == 1), "kosmap report")
+    for b in blocks:
+        if b[0] == "h":
+            parts.append(f"<h{b[1]}>{e(b[2])}</h{b[1]}>")
+        elif b[0] == "p":
+            parts.append(f"<p>{e(b[1])}</p>")
+        elif b[0] == "warn":
+            parts.append(f"<p class='warn'>{e(b[1])}</p>")
+        elif b[0] == "list":
+            parts.append("<ul>" + "".join(f"<li>{e(str(x))}</li>" for x in b[1]) + "</ul>")
+        elif b[0] == "table":
+            head = "".join(f"<th>{e(str(h))}</th>" for h in b[1])
+            body = "".join("<tr>" + "".join(f"<td>{e(str(c))}</td>" for c in r) + "</tr>" for r in b[2])
+            parts.append(f"<table><tr>{head}</tr>{body}</table>")
+        elif b[0] == "images":
+            figs = "".join(f"<figure><img alt='{e(cap)}' src='{_b64(p)}'><figcaption>{e(cap)}</figcaption></figure>"
+                           for p, cap in b[1] if Path(p).is_file())
+            parts.append(f"<div class='grid'>{figs}</div>")
+    return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{e(title)}</title>"
+            f"<style>{CSS}</style></head><body>{''.join(parts)}</body></html>\n")
+
+
+def write_report(out: str | Path, metrics: dict) -> dict[str, Path]:
+    """Write trajectories.png, frames.png, report.md and report.html into `out` (beside the run's files)."""
+    out = Path(out)
+    traj = trajectory_figure(out, metrics)
+    frames = frames_figure(out) if metrics.get("sources", {}).get("kos") else None
+    blocks = _sections(out, metrics, traj, frames)
+    files = {}
+    for name, text in (("report.md", _md(blocks, out)), ("report.html", _html(blocks))):
+        p = out / name
+        tmp = p.with_name(p.name + ".partial")
+        tmp.write_text(text)
+        os.replace(tmp, p)
+        files[name.replace(".", "_")] = p
+    if traj is not None:
+        files["trajectories_png"] = traj
+    if frames is not None:
+        files["frames_png"] = frames
+    return files

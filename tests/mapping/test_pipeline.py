@@ -1,0 +1,202 @@
+"""`mapping.pipeline.build` end to end on short simulated logs of the room world: serial and parallel runs give
+identical maps; a log without a laser, without depth or with neither; an interrupted run writes partial outputs;
+every output exists and parses."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+import tomllib
+
+import numpy as np
+import pytest
+
+from backend.trajio import read_tum
+from frontend.errors import ConfigError, TopicError
+from frontend.logs import open_log
+from frontend.logs.writer import McapWriter
+from frontend.records import CameraModel, DepthFrame, Scan
+from mapping.config import load_config
+from mapping.mapio import read_map_server, write_map_server
+from mapping.pipeline import Progress, build
+
+# lean settings for seconds-long logs: the room's 11 m loop from its start, a cloud every 0.5 s in the MCAP
+SETS = ["build.mcap_planes_period=0.5"]
+
+
+def _copy(src, dst, keep) -> None:
+    """A log holding the records of `src` for which keep(record) holds."""
+    with open_log(src) as log, McapWriter(dst) as w:
+        for rec in log.read(log.info().types()):
+            if keep(rec):
+                w.write(rec, rec.topic)
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    from tools.simulate import SimConfig, load_world, simulate
+
+    d = tmp_path_factory.mktemp("pipeline")
+    world = load_world("room")
+    full = d / "room.mcap"
+    simulate(world, SimConfig(seed=4, duration=2.5), full)
+    bp = write_map_server(world.blueprint(0.05), d / "room_bp.yaml", ".png")
+    laser_only = d / "laser_only.mcap"
+    _copy(full, laser_only, lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+    depth_only = d / "depth_only.mcap"
+    _copy(full, depth_only, lambda r: not isinstance(r, Scan))
+    neither = d / "neither.mcap"
+    _copy(full, neither, lambda r: not isinstance(r, (DepthFrame, CameraModel, Scan)))
+    return {"full": full, "laser_only": laser_only, "depth_only": depth_only, "neither": neither, "blueprint": bp}
+
+
+@pytest.fixture(scope="module")
+def serial_run(logs, tmp_path_factory):
+    out = tmp_path_factory.mktemp("serial")
+    return build(logs["full"], out, load_config(None, SETS), blueprint=logs["blueprint"], workers=0)
+
+
+@pytest.mark.slow
+def test_serial_and_parallel_runs_give_identical_maps(logs, serial_run, tmp_path):
+    par = build(logs["full"], tmp_path, load_config(None, SETS), blueprint=logs["blueprint"], workers=2)
+    a, b = serial_run.metrics, par.metrics
+    assert a["frames"]["processed"] == b["frames"]["processed"] == 75  # 2.5 s at 30 Hz
+    assert set(a["maps"]) == set(b["maps"]) == {"kos_h0_30", "kos_h0_75", "kos_h1_50", "kos_obstacle", "laser",
+                                               "fused", "kos_obstacle_at_laser_poses"}
+    for name in a["maps"]:
+        ga = read_map_server(serial_run.out / f"map_{name}.yaml")
+        gb = read_map_server(par.out / f"map_{name}.yaml")
+        assert ga.origin == gb.origin and np.array_equal(ga.data, gb.data), name
+        assert (serial_run.out / f"map_{name}.pgm").read_bytes() == (par.out / f"map_{name}.pgm").read_bytes()
+    for src in ("kos", "laser"):
+        ta, pa = read_tum(serial_run.out / f"trajectory_{src}.tum")
+        tb, pb = read_tum(par.out / f"trajectory_{src}.tum")
+        assert np.array_equal(ta, tb) and np.array_equal(pa, pb), src
+    assert (serial_run.out / "stats.csv").read_text().splitlines()[1:] and \
+        [r.split(",")[:9] for r in (serial_run.out / "stats.csv").read_text().splitlines()] == \
+        [r.split(",")[:9] for r in (par.out / "stats.csv").read_text().splitlines()]  # all but the timings
+    assert a["table_5_5"]["workers"] == 0 and b["table_5_5"]["workers"] == 2
+
+
+@pytest.mark.slow
+def test_outputs_exist_and_parse(serial_run, logs):
+    out, m = serial_run.out, serial_run.metrics
+    assert not serial_run.partial and m["partial"] is False
+    assert not list(out.glob("*.partial")) and not list(out.glob(".kosmap-spill-*"))  # nothing half-written, spill gone
+    # maps: map_server YAML + PGM and a PNG per source and level
+    for name in m["maps"]:
+        g = read_map_server(out / f"map_{name}.yaml")
+        assert g.resolution == pytest.approx(0.05) and (g.data == 100).any() and (g.data == 0).any(), name
+        assert (out / f"map_{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # trajectories (TUM) cover the log; the ground truth is written beside them
+    t, p = read_tum(out / "trajectory_kos.tum")
+    assert len(t) == m["frames"]["steps"] == 75 and p.shape == (75, 3)
+    assert t[-1] - t[0] == pytest.approx(2.5 - 1 / 30, abs=0.01)
+    assert len(read_tum(out / "ground_truth.tum")[0]) >= 250
+    # stats.csv: one row per frame with the Table 5.2 columns
+    with open(out / "stats.csv") as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 75
+    r = rows[0]
+    parts = float(r["ineligible_pct"]) + float(r["inlier_pct"]) + float(r["dropped_pct"]) + float(r["outlier_pct"])
+    assert 0 < parts <= 100.0 + 1e-6 and float(r["fspf_ms"]) > 0
+    # metrics.json: strict JSON, accuracy on this short loop segment, comparisons at every tolerance
+    m2 = json.loads((out / "metrics.json").read_text())
+    assert m2["sources"] == {"kos": True, "laser": True, "ground_truth": True, "blueprint": str(logs["blueprint"])}
+    assert m2["slam"]["laser"]["ate"]["rmse"] < 0.05 and m2["slam"]["kos"]["ate"]["rmse"] < 0.10
+    assert set(m2["comparisons"]) == {"kos_obstacle_vs_blueprint", "laser_vs_blueprint", "fused_vs_blueprint",
+                                      "kos_obstacle_at_laser_poses_vs_blueprint", "kos_obstacle_vs_laser"}
+    for c in m2["comparisons"].values():
+        assert set(c["tolerances"]) == {"0.05", "0.10", "0.20"}
+    lb = m2["comparisons"]["laser_vs_blueprint"]["tolerances"]["0.10"]
+    assert lb["recall_observed"] > 0.85  # the laser finds the room's walls where it looks ...
+    assert lb["precision"] > 0.75  # ... and sees furniture the plan lacks (table legs, shelves, a box)
+    kb = m2["comparisons"]["kos_obstacle_vs_blueprint"]["tolerances"]["0.10"]
+    assert kb["precision"] > 0.8 and kb["coverage"] > 0.3
+    t55 = m2["table_5_5"]
+    assert t55["fspf_ms"]["n"] == 75 and t55["system_hz"] > 0 and m2["timing"]["realtime_factor"] > 0
+    # the effective config round-trips
+    cfg = tomllib.loads((out / "config.toml").read_text())
+    assert cfg["build"]["mcap_planes_period"] == 0.5 and cfg["build"]["slam_scan"] == "obstacle"
+    # report.html: self-contained (every image embedded), says what it shows; report.md links the PNGs
+    html = (out / "report.html").read_text()
+    imgs = re.findall(r"<img [^>]*src='([^']*)'", html)
+    assert len(imgs) >= len(m["maps"]) + len(m["comparisons"]) + 2  # maps, overlays, trajectories, frames
+    assert all(s.startswith("data:image/png;base64,") for s in imgs)
+    assert "http" not in html and "Table 5.2" in html and "Table 5.5" in html and "ATE" in html
+    assert "PARTIAL" not in html
+    md = (out / "report.md").read_text()
+    for png in re.findall(r"\]\(([^)]+\.png)\)", md):
+        assert (out / png).is_file(), png
+    # the MCAP for Foxglove: scans per level, laser, fused, plane points, /tf, paths and every map
+    with open_log(out / "kosmap.mcap") as log:
+        counts = {t.name: t.count for t in log.info().topics}
+    for level in ("h0_30", "h0_75", "h1_50", "obstacle"):
+        assert counts[f"/kinect_scan/{level}"] == 75
+    assert counts["/tf"] == 75 and counts["/tf_static"] == 1 and counts["/scan"] == m["frames"]["laser_scans_used"]
+    assert counts["/kinect_scan/fused"] >= 20 and counts["/kosmap/planes/points"] == 5
+    assert counts["/kosmap/path/kos"] == counts["/kosmap/path/laser"] == counts["/kosmap/path/ground_truth"] == 1
+    assert {f"/kosmap/map/{n}" for n in m["maps"]} <= set(counts)
+
+
+@pytest.mark.slow
+def test_a_log_without_laser_builds_the_kos_maps_alone(logs, tmp_path):
+    res = build(logs["depth_only"], tmp_path, load_config(None, SETS), blueprint=logs["blueprint"], workers=0)
+    m = res.metrics
+    assert m["sources"]["laser"] is False and set(m["slam"]) == {"kos"}
+    assert set(m["maps"]) == {"kos_h0_30", "kos_h0_75", "kos_h1_50", "kos_obstacle"}
+    assert set(m["comparisons"]) == {"kos_obstacle_vs_blueprint"}
+    assert not (tmp_path / "trajectory_laser.tum").exists() and (tmp_path / "report.html").is_file()
+
+
+@pytest.mark.slow
+def test_a_log_without_depth_builds_the_laser_map_alone(logs, tmp_path):
+    res = build(logs["laser_only"], tmp_path, load_config(None, SETS), workers=2)
+    m = res.metrics
+    assert m["sources"]["kos"] is False and set(m["slam"]) == {"laser"} and set(m["maps"]) == {"laser"}
+    assert m["comparisons"] == {} and m["frames"]["processed"] == 0
+    assert m["frames"]["laser_scans_used"] == 25  # 2.5 s at the default 10 Hz of the 40 Hz laser
+    assert m["slam"]["laser"]["ate"]["rmse"] < 0.05
+    assert not (tmp_path / "stats.csv").read_text().splitlines()[1:]  # the header only
+    html = (tmp_path / "report.html").read_text()
+    assert "Plane filtering per frame" not in html and "laser SLAM" in html
+
+
+def test_a_log_with_neither_fails_with_one_line(logs, tmp_path):
+    with pytest.raises(TopicError, match="neither a depth image topic nor a laser scan topic") as e:
+        build(logs["neither"], tmp_path / "o", workers=0)
+    assert "\n" not in str(e.value)
+    assert not (tmp_path / "o").exists()  # refused before writing anything
+
+
+def test_an_unknown_slam_scan_is_refused(logs, tmp_path):
+    with pytest.raises(ConfigError, match="slam_scan"):
+        build(logs["full"], tmp_path / "o", load_config(None, ["build.slam_scan=\"h9_99\""]), workers=0)
+    with pytest.raises(ConfigError, match="kos_odometry has unknown key"):
+        build(logs["full"], tmp_path / "o", load_config(None, ["build.kos_odometry={nonsense=1}"]), workers=0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("workers", [0, 2])
+def test_an_interrupted_run_writes_what_is_done_marked_partial(logs, tmp_path, workers):
+    seen = []
+
+    def stop_after_30(p: Progress) -> None:
+        seen.append(p.frames)
+        if p.frames == 30:
+            raise KeyboardInterrupt
+
+    res = build(logs["full"], tmp_path, load_config(None, SETS), blueprint=logs["blueprint"], workers=workers,
+                on_progress=stop_after_30)
+    m = res.metrics
+    assert res.partial and m["partial"] is True
+    assert m["frames"]["processed"] == 30 and 25 <= m["frames"]["steps"] <= 30
+    assert 0.8 < m["interrupted_at_s"] < 2.0
+    t, _ = read_tum(tmp_path / "trajectory_kos.tum")
+    assert len(t) == m["frames"]["steps"]
+    assert read_map_server(tmp_path / "map_kos_obstacle.yaml").data.size > 0
+    assert "PARTIAL RESULT" in (tmp_path / "report.html").read_text()
+    assert "PARTIAL RESULT" in (tmp_path / "report.md").read_text()
+    assert json.loads((tmp_path / "metrics.json").read_text())["partial"] is True
+    assert not list(tmp_path.glob("*.partial")) and not list(tmp_path.glob(".kosmap-spill-*"))

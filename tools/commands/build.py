@@ -1,0 +1,56 @@
+"""`kosmap build LOG --out DIR [--blueprint BP.yaml]`: every map of a log, compared, with a report (mapping/pipeline.py)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from tools import options as O
+
+
+def print_headline(metrics: dict, out: Path) -> None:
+    """The report's place and its headline numbers (what `kosmap build` and `kosmap demo` print)."""
+    from mapping.report import headline
+
+    h = headline(metrics)
+    if h["partial"]:
+        print(f"PARTIAL: interrupted after {metrics['interrupted_at_s']:.1f} s of {metrics['log']['duration_s']:.1f} s "
+              f"of log; the outputs cover only that part")
+    labels = {k: f"{metrics['maps'].get(c['a'], {}).get('label', c['a'])} vs {c['b'] if c['b'] == 'blueprint' else metrics['maps'].get(c['b'], {}).get('label', c['b'])}"
+              for k, c in metrics["comparisons"].items()}
+    for k, f1 in h["f1"].items():
+        print(f"  F1 at 0.10 m  {labels[k]:<45} {f1:.3f}")
+    for k, ate in h["ate"].items():
+        print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<45} {ate:.3f} m")
+    t = metrics["timing"]
+    print(f"  {t['total_s']:.1f} s for {t['log_s']:.1f} s of log: {t['realtime_factor']:.1f}× real time")
+    for w in metrics.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
+    print(f"report: {out / 'report.html'} (and report.md; maps, trajectories, metrics.json, kosmap.mcap in {out})")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def build(
+        log: Annotated[Path, typer.Argument(help="Log: .mcap (ROS 2) or .bag (ROS 1) with depth images and/or a laser.")],
+        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (maps, trajectories, report, MCAP, metrics).")] = Path("build_out"),
+        blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Floor blueprint (map_server .yaml) to compare the maps with.")] = None,
+        workers: Annotated[Optional[int], typer.Option("--workers", "-j", help="Processes for FSPF+ and KOS (default: every core; 0 = serial). The maps are the same.")] = None,
+        quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
+        config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
+        info_topic: O.InfoTopicOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
+    ) -> None:
+        """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
+        with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
+        Ctrl-C stops reading and writes what is done, marked partial."""
+        from mapping.pipeline import build as run
+
+        cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic)
+        show = not quiet and sys.stderr.isatty()
+        res = run(log, out, cfg, blueprint=blueprint, workers=workers, progress=show,
+                  say=None if quiet else (lambda m: print(m, file=sys.stderr)))
+        if not quiet:
+            print_headline(res.metrics, out)
