@@ -42,7 +42,7 @@ class GraphConfig(StageConfig):
     loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps whose centre is within this distance", unit="m")
     loop_max_candidates: int = param(8, lo=1, doc="search at most this many candidate submaps per node, nearest first")
     loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it")
-    loop_search_every: int = param(1, lo=1, doc="search for loops at every n-th node")
+    loop_search_every: int = param(2, lo=1, doc="search for loops at every n-th node")
     loop_linear_window: float = param(1.0, lo=0.0, doc="branch-and-bound half window in x and y", unit="m")
     loop_angular_window_deg: float = param(20.0, lo=0.0, doc="branch-and-bound half window in yaw", unit="deg")
     loop_min_score: float = param(0.6, lo=0.0, hi=1.0, doc="branch-and-bound score a loop must exceed (coarse field)")
@@ -167,8 +167,7 @@ class PoseGraph:
         self.pending = gtsam.NonlinearFactorGraph()
         self.pending_values = gtsam.Values()
         new, self.n_pending_nodes = self.n_pending_nodes, 0
-        if full:
-            self.isam.update()  # one more relinearisation pass after a loop
+        if full:  # after loops every node may move
             self._read(self.isam.calculateEstimate())
         else:  # without loops only the new nodes move noticeably
             for i in range(self.n - new, self.n):
