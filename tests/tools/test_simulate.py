@@ -494,3 +494,98 @@ def test_cli_writes_log_blueprint_and_settings(capsys, tmp_path):
         assert "/scan" not in info.types()
         assert info.count("/kinect2/sd/image_depth_rect") == 3 and info.count("/odom") == 8
     assert not list(tmp_path.glob("*.partial"))
+
+
+# ---- any number of depth cameras ---------------------------------------------------------------------------------
+
+LEFT = {"ns": "/kinect2_left/sd", "frame": "kinect2_left_ir_optical_frame", "xyz": [0, 0.1, 1.0], "rpy_deg": [0, 0, 90]}
+
+
+def test_three_cameras_read_back_each_with_its_info_and_mount(capsys, tmp_path):
+    """Front, rear and a left-facing camera from a TOML list of tables (the left one) and --camera (a fourth, pitched
+    one on the right, frame from its namespace): each depth topic is matched to its own camera_info and mounted
+    in /tf_static where it was put."""
+    toml, out = tmp_path / "sim.toml", tmp_path / "cams.mcap"
+    toml.write_text('[simulate]\nextra_cameras = [{ns = "/kinect2_left/sd", frame = "kinect2_left_ir_optical_frame", '
+                    'xyz = [0, 0.1, 1.0], rpy_deg = [0, 0, 90]}]\n')
+    code = main(["simulate", "room", "--out", str(out), "--duration", "0.2", "--rear-camera", "--surface-ids",
+                 "--config", str(toml), "--camera", "/kinect2_right/sd:0,-0.1,0.9:0,20,-90", "--no-laser", "-q"])
+    assert code == 0, capsys.readouterr().err
+    names = ["/kinect2/sd", "/kinect2_rear/sd", "/kinect2_left/sd", "/kinect2_right/sd"]
+    frames = ["kinect2_ir_optical_frame", "kinect2_rear_ir_optical_frame", "kinect2_left_ir_optical_frame",
+              "kinect2_right_ir_optical_frame"]
+    with open_log(out) as log:
+        info = log.info()
+        det = detect_topics(info.types())
+        assert det.depth == [f"{n}/image_depth_rect" for n in ["/kinect2/sd", "/kinect2_left/sd", "/kinect2_rear/sd",
+                                                                "/kinect2_right/sd"]]
+        for n in names:
+            assert det.info[f"{n}/image_depth_rect"] == f"{n}/camera_info"
+            assert info.count(f"{n}/image_depth_rect") == 6 and info.count(f"{n}/surface_id") == 6
+        recs = list(log.read(det.wanted()))
+    tf = next(r for r in recs if isinstance(r, Transforms))
+    mounts = {t.child: t.matrix() for t in tf.transforms}
+    assert set(mounts) == set(frames)
+    # the optical axis (z) of each camera in base_link, and its position
+    for frame, pos, axis in (("kinect2_ir_optical_frame", [0.1, 0, 1.0], [1, 0, 0]),
+                             ("kinect2_rear_ir_optical_frame", [-0.1, 0, 1.0], [-1, 0, 0]),
+                             ("kinect2_left_ir_optical_frame", [0, 0.1, 1.0], [0, 1, 0]),
+                             ("kinect2_right_ir_optical_frame", [0, -0.1, 0.9],
+                              [0, -math.cos(math.radians(20)), -math.sin(math.radians(20))])):
+        assert np.allclose(mounts[frame][:3, 3], pos, atol=1e-12)
+        assert np.allclose(mounts[frame][:3, 2], axis, atol=1e-12), frame
+    by_topic = {}
+    for r in recs:
+        if isinstance(r, DepthFrame):
+            by_topic.setdefault(r.topic, r.frame_id)
+    assert [by_topic[f"{n}/image_depth_rect"] for n in names] == frames
+    import yaml
+
+    doc = yaml.safe_load(out.with_suffix(".sim.yaml").read_text())
+    assert doc["config"]["extra_cameras"] == [
+        {"ns": "/kinect2_left/sd", "frame": "kinect2_left_ir_optical_frame", "xyz": [0.0, 0.1, 1.0],
+         "rpy_deg": [0.0, 0.0, 90.0]},
+        {"ns": "/kinect2_right/sd", "frame": "kinect2_right_ir_optical_frame", "xyz": [0.0, -0.1, 0.9],
+         "rpy_deg": [0.0, 20.0, -90.0]}]
+
+
+def test_extra_cameras_leave_the_front_camera_bytes_alone(room, tmp_path):
+    """Each camera draws from its own random stream: adding one changes nothing the front camera wrote."""
+    a, b = tmp_path / "a.mcap", tmp_path / "b.mcap"
+    simulate(room, SimConfig(seed=5, duration=0.1, laser=False), a)
+    simulate(room, SimConfig(seed=5, duration=0.1, laser=False, extra_cameras=[LEFT]), b)
+    with open_log(a) as la, open_log(b) as lb:
+        fa = [r.image for r in la.read(["/kinect2/sd/image_depth_rect"])]
+        fb = [r.image for r in lb.read(["/kinect2/sd/image_depth_rect"])]
+    assert len(fa) == len(fb) == 3 and all(np.array_equal(x, y) for x, y in zip(fa, fb))
+
+
+def test_bad_extra_cameras_are_refused(room, capsys, tmp_path):
+    for entry, words in (({"frame": "f", "xyz": [0, 0, 1]}, ["extra_cameras[0]", "missing 'ns'"]),
+                         ({**LEFT, "ns": "/kinect2/sd"},
+                          ["extra_cameras[0]", "namespace '/kinect2/sd'", "front camera"]),
+                         ({**LEFT, "ns": "/other/sd", "frame": "kinect2_ir_optical_frame"}, ["frame", "already used"]),
+                         ({**LEFT, "xyz": [0, 1]}, ["xyz must be 3 numbers"]),
+                         ({**LEFT, "fov": 90}, ["unknown key 'fov'"])):
+        with pytest.raises(ConfigError, match=r"\[simulate\] extra_cameras\[0\]") as e:
+            SimConfig(extra_cameras=[entry])
+        assert all(w in str(e.value) for w in words) and "\n" not in str(e.value), (entry, e.value)
+    with pytest.raises(WorldError, match=r"camera /up/sd would be outside the world .* check extra_cameras\[0\]\.xyz"):
+        simulate(room, SimConfig(duration=0.5, extra_cameras=[{"ns": "/up/sd", "xyz": [0, 0, 3.0]}]),
+                 tmp_path / "x.mcap")
+    with pytest.raises(WorldError, match=r"inside shelf.* check extra_cameras\[0\]\.xyz"):
+        simulate(room, SimConfig(extra_cameras=[{"ns": "/far/sd", "xyz": [1.0, 0, 0.3]}]), tmp_path / "x.mcap")
+    (tmp_path / "out").mkdir()
+    out = tmp_path / "out" / "log.mcap"
+    for argv, words in ((["--camera", "/kinect2_rear/sd:0,0"], ["--camera", "NS:x,y,z"]),
+                        (["--camera", "/a/sd:0,0,1", "--camera", "/a/sd:0,0,1.2"],
+                         ["extra_cameras[1]", "already used"]),
+                        (["--camera", "/a/sd:0,0,3.5"], ["outside the world", "extra_cameras[0].xyz"]),
+                        (["--set", 'extra_cameras=[{ns = "/a/sd"}]'], ["missing 'xyz'"])):
+        code = main(["simulate", "room", "--out", str(out), *argv])
+        _, err = capsys.readouterr()
+        assert code == 2, (argv, err)
+        lines = err.strip().splitlines()
+        assert len(lines) == 1 and lines[0].startswith("kosmap: error: ") and "Traceback" not in err
+        assert all(w in lines[0] for w in words), (argv, lines[0])
+        assert not list((tmp_path / "out").iterdir()), argv

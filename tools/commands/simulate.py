@@ -44,6 +44,26 @@ def _sim_config(config: Path | None, sets: list[str] | None, **flags):
         raise ConfigError(f"simulator settings: {e}") from e
 
 
+def _parse_camera(text: str) -> dict:
+    """--camera NS:x,y,z[:roll,pitch,yaw[:FRAME]] → an extra_cameras entry (checked later by SimConfig)."""
+    parts = text.split(":")
+    usage = (f"--camera {text!r} must look like NS:x,y,z[:roll,pitch,yaw[:FRAME]] (m, deg), e.g. "
+             f"/kinect2_left/sd:0,0.1,1.0:0,0,90")
+    if not 2 <= len(parts) <= 4 or not parts[0]:
+        raise ConfigError(usage)
+    entry: dict = {"ns": parts[0]}
+    for key, field in zip(("xyz", "rpy_deg"), parts[1:3]):
+        try:
+            entry[key] = [float(v) for v in field.split(",")]
+        except ValueError:
+            raise ConfigError(usage) from None
+        if len(entry[key]) != 3:
+            raise ConfigError(usage)
+    if len(parts) == 4:
+        entry["frame"] = parts[3]
+    return entry
+
+
 def _write_sidecar(out: Path, world_arg: str, cfg, summary: dict) -> Path:
     """The effective settings and the summary beside the log (`LOG.sim.yaml`), so a run can be repeated."""
     import yaml
@@ -69,6 +89,7 @@ def register(app: typer.Typer) -> None:
         surface_ids: Annotated[bool, typer.Option("--surface-ids", help="Also write each depth frame's surface ids.")] = False,
         camera_height: Annotated[Optional[float], typer.Option("--camera-height", help="Front camera height (m).")] = None,
         camera_pitch: Annotated[Optional[float], typer.Option("--camera-pitch", help="Front camera pitch (deg, > 0 looks down).")] = None,
+        camera: Annotated[Optional[list[str]], typer.Option("--camera", help="Add a depth camera: NS:x,y,z[:roll,pitch,yaw[:FRAME]] (m, deg; repeatable; frame default from NS).")] = None,
         blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Also export the floor plan as map_server PNG + YAML (give the .yaml).")] = None,
         resolution: Annotated[float, typer.Option("--resolution", help="Blueprint cell size (m).")] = 0.05,
         config: Annotated[Optional[Path], typer.Option("--config", "-c", help="TOML file with a 'simulate' section (its keys as for --set).")] = None,
@@ -92,6 +113,8 @@ def register(app: typer.Typer) -> None:
             if camera_pitch is not None:
                 rpy[1] = camera_pitch
             cfg = dataclasses.replace(cfg, camera_xyz=xyz, camera_rpy_deg=rpy)
+        if camera:  # added to the config's extra_cameras
+            cfg = dataclasses.replace(cfg, extra_cameras=cfg.extra_cameras + [_parse_camera(c) for c in camera])
         w = load_world(world)
         way = load_path(path) if path is not None else None
         if blueprint is not None:

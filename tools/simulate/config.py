@@ -47,6 +47,8 @@ class SimConfig(StageConfig):
     rear_rpy_deg: list = param([0.0, 0.0, 180.0], doc="rear camera roll, pitch, yaw", unit="deg")
     rear_ns: str = param("/kinect2_rear/sd", doc="rear camera topic namespace")
     rear_frame: str = param("kinect2_rear_ir_optical_frame", doc="rear camera optical frame id")
+    extra_cameras: list = param([], doc="more depth cameras: a list of tables {ns, frame (default from ns), "
+                                "xyz (m), rpy_deg (default level)}, each with its own topics and mount")
     surface_ids: bool = param(False, doc="also write each depth frame's ground-truth surface ids (<ns>/surface_id)")
     depth_min_range: float = param(0.5, lo=0.0, doc="nearer returns are invalid (0)", unit="m")
     depth_max_range: float = param(8.0, **_POS, doc="farther returns are invalid (0)", unit="m")
@@ -110,6 +112,16 @@ class SimConfig(StageConfig):
         for name in ("camera_ns", "rear_ns", "scan_topic", "odom_topic", "gt_topic"):
             if not getattr(self, name).startswith("/"):
                 raise ConfigError(f"config [{s}] {name} = {getattr(self, name)!r} must start with '/'")
+        object.__setattr__(self, "extra_cameras", [_extra_camera(s, k, e) for k, e in enumerate(self.extra_cameras)])
+        seen: dict[tuple[str, str], str] = {}  # (what, namespace or frame id) → the camera that claimed it
+        for ns, frame, _, _, label, _ in self._camera_specs():
+            for what, v in (("namespace", ns), ("frame", frame)):
+                if (what, v) in seen:
+                    raise ConfigError(f"config [{s}] {label}: {what} {v!r} is already used by {seen[what, v]}; "
+                                      f"give each camera its own")
+                seen[what, v] = label
+            if self.laser and frame == self.laser_frame:
+                raise ConfigError(f"config [{s}] {label}: frame {frame!r} is the laser's frame; give it its own")
 
     @classmethod
     def keys(cls) -> list[str]:
@@ -119,14 +131,26 @@ class SimConfig(StageConfig):
     def camera_model(self, frame_id: str):
         return kinect_v2_model(frame_id, self.depth_width, self.depth_height, self.fov_h_deg, self.fov_v_deg)
 
-    def cameras(self) -> list[tuple[str, object]]:
-        """(topic namespace, mount base_link ← optical) of each depth camera."""
-        out = [(self.camera_ns, camera_mount(self.camera_xyz, [math.radians(v) for v in self.camera_rpy_deg],
-                                             self.camera_frame))]
+    def _camera_specs(self) -> list[tuple[str, str, list, list, str, str]]:
+        """(namespace, frame, xyz, rpy_deg, label, setting of its position) of each depth camera: front, rear,
+        then the extras."""
+        out = [(self.camera_ns, self.camera_frame, self.camera_xyz, self.camera_rpy_deg,
+                "the front camera (camera_ns, camera_frame)", "camera_xyz")]
         if self.rear_camera:
-            out.append((self.rear_ns, camera_mount(self.rear_xyz, [math.radians(v) for v in self.rear_rpy_deg],
-                                                   self.rear_frame)))
+            out.append((self.rear_ns, self.rear_frame, self.rear_xyz, self.rear_rpy_deg,
+                        "the rear camera (rear_ns, rear_frame)", "rear_xyz"))
+        for k, e in enumerate(self.extra_cameras):
+            out.append((e["ns"], e["frame"], e["xyz"], e["rpy_deg"], f"extra_cameras[{k}]", f"extra_cameras[{k}].xyz"))
         return out
+
+    def cameras(self) -> list[tuple[str, object]]:
+        """(topic namespace, mount base_link ← optical) of each depth camera: front, rear, then the extras."""
+        return [(ns, camera_mount(xyz, [math.radians(v) for v in rpy], frame))
+                for ns, frame, xyz, rpy, _, _ in self._camera_specs()]
+
+    def camera_settings(self) -> list[str]:
+        """The setting that places each camera of cameras(), in the same order (for error messages)."""
+        return [key for *_, key in self._camera_specs()]
 
     def laser_mount(self):
         return laser_mount(self.laser_xyz, [math.radians(v) for v in self.laser_rpy_deg], self.laser_frame)
@@ -146,3 +170,43 @@ class SimConfig(StageConfig):
     def odometry_noise(self) -> OdometryNoise:
         return OdometryNoise(self.odom_scale_error, self.odom_rot_scale_error, self.odom_heading_bias_deg_per_m,
                              self.odom_trans_noise, self.odom_rot_noise_deg, self.odom_rot_noise_per_m_deg)
+
+
+_EXTRA_KEYS = ("ns", "frame", "xyz", "rpy_deg")
+
+
+def default_frame(ns: str) -> str:
+    """The optical frame id kinect2_bridge would give a namespace: /kinect2_left/sd → kinect2_left_ir_optical_frame."""
+    parts = [p for p in ns.strip("/").split("/") if p]
+    if len(parts) > 1 and parts[-1] in ("sd", "hd", "qhd"):
+        parts = parts[:-1]
+    return "_".join(parts) + "_ir_optical_frame"
+
+
+def _extra_camera(section: str, k: int, entry) -> dict:
+    """One checked extra_cameras entry as {ns, frame, xyz, rpy_deg} (floats; frame and rpy_deg filled in)."""
+    where = f"config [{section}] extra_cameras[{k}] = {entry!r}"
+    if not isinstance(entry, dict):
+        raise ConfigError(f"{where} must be a table like {{ns = \"/kinect2_left/sd\", xyz = [0, 0.1, 1.0], "
+                          f"rpy_deg = [0, 0, 90]}}")
+    unknown = sorted(set(entry) - set(_EXTRA_KEYS))
+    if unknown:
+        raise ConfigError(f"{where} has unknown key {unknown[0]!r}; known: {', '.join(_EXTRA_KEYS)}")
+    for key in ("ns", "xyz"):
+        if key not in entry:
+            raise ConfigError(f"{where} is missing {key!r}; each camera needs ns and xyz (frame, rpy_deg optional)")
+    ns = entry["ns"]
+    if not isinstance(ns, str) or not ns.startswith("/") or not ns.strip("/") or ns.endswith("/"):
+        raise ConfigError(f"{where}: ns must be a topic namespace like \"/kinect2_left/sd\" (starts with '/', "
+                          f"no trailing '/')")
+    frame = entry.get("frame", default_frame(ns))
+    if not isinstance(frame, str) or not frame or "/" in frame or " " in frame:
+        raise ConfigError(f"{where}: frame must be a frame id like \"kinect2_left_ir_optical_frame\"")
+    out = {"ns": ns, "frame": frame}
+    for key, unit in (("xyz", "m"), ("rpy_deg", "deg")):
+        v = entry.get(key, [0.0, 0.0, 0.0])
+        if (not isinstance(v, (list, tuple)) or len(v) != 3
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in v)):
+            raise ConfigError(f"{where}: {key} must be 3 numbers ({unit})")
+        out[key] = [float(x) for x in v]
+    return out

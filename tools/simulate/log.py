@@ -44,7 +44,7 @@ def check_sensors(world: World, cfg: SimConfig, traj: Trajectory, duration: floa
     """Refuse mounts that put a sensor outside the building, below the floor, above the ceiling or inside a
     solid anywhere along the trajectory."""
     poses = traj.pose(np.arange(0.0, duration + 0.05, 0.1))
-    sensors = [(f"camera {ns}", "camera_xyz" if i == 0 else "rear_xyz", m) for i, (ns, m) in enumerate(cfg.cameras())]
+    sensors = [(f"camera {ns}", key, m) for (ns, m), key in zip(cfg.cameras(), cfg.camera_settings())]
     if cfg.laser:
         sensors.append(("laser", "laser_xyz", cfg.laser_mount()))
     for name, key, mount in sensors:
