@@ -29,6 +29,8 @@ class GraphConfig(StageConfig):
     section = "graph"
     node_distance: float = param(0.2, lo=0.0, doc="a new graph node after this travel", unit="m")
     node_angle_deg: float = param(10.0, lo=0.0, doc="… or after this rotation", unit="deg")
+    match_noise: str = param("hessian", choices=("fixed", "hessian"), doc="scan-matching factor σ: fixed below, or from the matches' Gauss–Newton information (+ the fixed part)")
+    match_n_eff: float = param(100.0, lo=1.0, doc="hessian noise: at most this many returns count as independent")
     match_sigma_xy: float = param(0.01, lo=0.0, lo_open=True, doc="scan-matching factor σ per node step, plus …", unit="m")
     match_sigma_xy_per_m: float = param(0.02, lo=0.0, doc="… this much per metre travelled", unit="m/m")
     match_sigma_yaw_deg: float = param(0.25, lo=0.0, lo_open=True, doc="scan-matching factor yaw σ per node step", unit="deg")
@@ -68,8 +70,9 @@ class Edge:
     a: int
     b: int
     measurement: np.ndarray  # (3,) pose of b in a's frame
-    sigmas: np.ndarray  # (3,) x, y, yaw
+    sigmas: np.ndarray  # (3,) x, y, yaw (square roots of the covariance's diagonal)
     score: float = float("nan")
+    cov: np.ndarray | None = None  # (3, 3) full covariance when not diagonal
 
 
 @dataclass
@@ -125,24 +128,28 @@ class PoseGraph:
                else gtsam.noiseModel.mEstimator.Huber.Create(k))
         return gtsam.noiseModel.Robust.Create(est, base)
 
-    def _add(self, kind: str, a: int, b: int, meas: np.ndarray, sigmas: np.ndarray, robust: bool, score: float = float("nan")):
-        model = self._noise(sigmas, robust)
+    def _add(self, kind: str, a: int, b: int, meas: np.ndarray, sigmas: np.ndarray, robust: bool, score: float = float("nan"),
+             cov: np.ndarray | None = None):
+        model = self._noise(sigmas, robust) if cov is None else gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=float))
+        if cov is not None:
+            sigmas = np.sqrt(np.diag(cov))
         if kind == "prior":
             f = gtsam.PriorFactorPose2(a, gtsam.Pose2(*map(float, meas)), model)
         else:
             f = gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(*map(float, meas)), model)
         self.pending.add(f)
         self.all_factors.add(f)
-        self.edges.append(Edge(kind, a, b, np.asarray(meas, dtype=float), np.asarray(sigmas, dtype=float), score))
+        self.edges.append(Edge(kind, a, b, np.asarray(meas, dtype=float), np.asarray(sigmas, dtype=float), score, cov))
 
-    def add_match(self, a: int, b: int, rel: np.ndarray, sigmas: np.ndarray | None = None) -> None:
-        """The front end's relative pose a → b (consecutive nodes)."""
-        if sigmas is None:
-            c = self.cfg
-            d = math.hypot(rel[0], rel[1])
-            sxy = c.match_sigma_xy + c.match_sigma_xy_per_m * d
-            sigmas = np.array([sxy, sxy, math.radians(c.match_sigma_yaw_deg)])
-        self._add("match", a, b, rel, sigmas, robust=False)
+    def match_sigmas(self, rel: np.ndarray) -> np.ndarray:
+        """The fixed part of a scan-matching factor's σ (x, y, yaw) for a relative pose."""
+        c = self.cfg
+        sxy = c.match_sigma_xy + c.match_sigma_xy_per_m * math.hypot(rel[0], rel[1])
+        return np.array([sxy, sxy, math.radians(c.match_sigma_yaw_deg)])
+
+    def add_match(self, a: int, b: int, rel: np.ndarray, sigmas: np.ndarray | None = None, cov: np.ndarray | None = None) -> None:
+        """The front end's relative pose a → b (consecutive nodes): fixed σ, or a full covariance `cov`."""
+        self._add("match", a, b, rel, self.match_sigmas(rel) if sigmas is None else sigmas, robust=False, cov=cov)
 
     def add_odometry(self, a: int, b: int, rel: np.ndarray) -> None:
         """The wheel-odometry increment a → b, with σ growing with distance and rotation."""
@@ -212,7 +219,8 @@ class PoseGraph:
         """VERTEX_SE2 / EDGE_SE2 text (g2o's format; information = upper triangle of Σ⁻¹)."""
         from backend.trajio import write_g2o
 
-        return write_g2o(path, self.est, [(e.a, e.b, e.measurement, e.sigmas, e.kind) for e in self.edges if e.kind != "prior"])
+        return write_g2o(path, self.est, [(e.a, e.b, e.measurement, e.sigmas if e.cov is None else e.cov, e.kind)
+                                          for e in self.edges if e.kind != "prior"])
 
 
 def _xyth(p) -> np.ndarray:

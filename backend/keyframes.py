@@ -25,6 +25,7 @@ class Keyframe:
     points: np.ndarray  # N×2 scan end points in base_link
     odom_pose: np.ndarray | None = None  # (3,) wheel odometry
     score: float = float("nan")  # front-end match score
+    cov: np.ndarray | None = None  # (3, 3) covariance of the front-end match, map frame (None: unknown)
 
 
 class KeyframeSelector:
@@ -52,3 +53,29 @@ def scan_poses(local_poses: np.ndarray, key_of_scan: np.ndarray, key_local: np.n
     k = np.asarray(key_of_scan)
     rel = se2.between(key_local[k], local_poses)
     return se2.compose(key_opt[k], rel)
+
+
+def relative_covariance(pa: np.ndarray, ca: np.ndarray, pb: np.ndarray, cb: np.ndarray) -> np.ndarray:
+    """Covariance of a⁻¹ ⊕ b from independent covariances of a and b (map frame, (x, y, yaw)), expressed as
+    gtsam's Pose2 error (the tangent space at the relative pose: translation in b's frame).
+
+    t_rel = R_aᵀ(t_b − t_a), θ_rel = θ_b − θ_a: ∂/∂t_a = −R_aᵀ, ∂/∂θ_a = −R_aᵀ·J·(t_b − t_a) with J the 90°
+    rotation, ∂/∂t_b = R_aᵀ, ∂θ_rel = dθ_b − dθ_a; then rotated by R_relᵀ into the tangent at the relative pose.
+    """
+    ca_, sa = math.cos(pa[2]), math.sin(pa[2])
+    RaT = np.array([[ca_, sa], [-sa, ca_]])
+    d = np.asarray(pb[:2], dtype=float) - np.asarray(pa[:2], dtype=float)
+    Jd = np.array([-d[1], d[0]])
+    Ja = np.zeros((3, 3))
+    Ja[:2, :2] = -RaT
+    Ja[:2, 2] = -RaT @ Jd
+    Ja[2, 2] = -1.0
+    Jb = np.zeros((3, 3))
+    Jb[:2, :2] = RaT
+    Jb[2, 2] = 1.0
+    c = Ja @ ca @ Ja.T + Jb @ cb @ Jb.T
+    th = float(pb[2] - pa[2])
+    A = np.eye(3)
+    A[:2, :2] = [[math.cos(th), math.sin(th)], [-math.sin(th), math.cos(th)]]
+    c = A @ c @ A.T
+    return 0.5 * (c + c.T)

@@ -57,7 +57,7 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 def write_g2o(path: str | Path, poses, edges) -> Path:
     """g2o SE2 graph: `VERTEX_SE2 id x y θ`, `EDGE_SE2 a b dx dy dθ I11 I12 I13 I22 I23 I33` (edges:
-    (a, b, measurement, sigmas, kind) with a diagonal information 1/σ²); the edge kind goes in a comment line
+    (a, b, measurement, σ per axis or a 3×3 covariance, kind); information = its inverse); the edge kind goes in a comment line
     before each loop so other tools still parse the file."""
     out = []
     for i, p in enumerate(np.asarray(poses, dtype=float)):
@@ -65,10 +65,12 @@ def write_g2o(path: str | Path, poses, edges) -> Path:
     if len(poses):
         out.append("FIX 0")
     for a, b, m, s, kind in edges:
-        info = 1.0 / np.asarray(s, dtype=float) ** 2
+        s = np.asarray(s, dtype=float)
+        info = np.linalg.inv(s) if s.ndim == 2 else np.diag(1.0 / s ** 2)  # a covariance, or σ per axis
         if kind == "loop":
             out.append("# loop")
-        out.append(f"EDGE_SE2 {a} {b} {m[0]:.6f} {m[1]:.6f} {m[2]:.9f} {info[0]:.6g} 0 0 {info[1]:.6g} 0 {info[2]:.6g}")
+        out.append(f"EDGE_SE2 {a} {b} {m[0]:.6f} {m[1]:.6f} {m[2]:.9f} {info[0, 0]:.6g} {info[0, 1]:.6g} {info[0, 2]:.6g} "
+                   f"{info[1, 1]:.6g} {info[1, 2]:.6g} {info[2, 2]:.6g}")
     return _atomic_write(Path(path), "\n".join(out) + "\n")
 
 

@@ -77,7 +77,17 @@ class FrontendResult:
     keyframe: bool  # the scan was inserted into the local submap
     matched: bool  # False when the scan had too few points (or no map yet): pose is the prediction
     score: float = float("nan")  # mean fine-field value at the scan's points after matching
-    info: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # Gauss–Newton information of the match
+    info: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # (1/N)·Σ JᵀJ of the match (frame of the map)
+    n_points: int = 0  # points the match used
+
+    def covariance(self, n_eff: float, floor: float = 1e-6) -> np.ndarray:
+        """The match's covariance in the map frame, (n·H)⁻¹ with n = min(n_points, n_eff): returns are not
+        independent (one wall gives many), so at most `n_eff` count. Huge along unobserved directions."""
+        n = min(float(self.n_points), float(n_eff))
+        if not self.matched or n <= 0:
+            return np.diag([1.0, 1.0, 0.1])  # unmatched: metres and ~20° (the prediction only)
+        h = self.info * n + np.eye(3) * floor
+        return np.linalg.inv(h)
 
 
 class WheelOdometry:
@@ -344,7 +354,7 @@ class SubmapOdometry:
         key = len(pts) >= cfg.min_points and self._is_keyframe(pose)
         if key:
             self._insert(pose, pts)
-        return FrontendResult(pose.copy(), key, matched, float(score), info)
+        return FrontendResult(pose.copy(), key, matched, float(score), info, len(pts))
 
 
 class KissIcpOdometry:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from backend.graph import GraphConfig, PoseGraph
-from backend.keyframes import Keyframe, KeyframeSelector, scan_poses
+from backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
 from backend.loops import LoopCloser, LoopConstraint
 from frontend import se2
 from frontend.errors import KosmapError, TopicError
@@ -102,8 +102,9 @@ class Slam:
         if self.points is not None:
             self.points.append(np.asarray(points, dtype=np.float32))
         if self.select(res.pose, len(points)):
+            cov = res.covariance(self.gcfg.match_n_eff) if self.gcfg.match_noise == "hessian" else None
             self._add_keyframe(Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
-                                        None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score))
+                                        None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov))
         self.key_of_scan.append(max(len(self.keyframes) - 1, 0))
 
     def _add_keyframe(self, kf: Keyframe) -> None:
@@ -115,7 +116,12 @@ class Slam:
             prev = self.keyframes[-1]
             rel = se2.between(prev.local_pose, kf.local_pose)
             g.add_node(se2.compose(g.est[prev.id], rel))
-            g.add_match(prev.id, kf.id, rel)
+            if kf.cov is not None and prev.cov is not None:
+                # honest: both ends' match covariances (large along what the scans cannot see) + the fixed part
+                cov = relative_covariance(prev.local_pose, prev.cov, kf.local_pose, kf.cov) + np.diag(g.match_sigmas(rel) ** 2)
+                g.add_match(prev.id, kf.id, rel, cov=cov)
+            else:
+                g.add_match(prev.id, kf.id, rel)
             if self.gcfg.odometry_factors and kf.odom_pose is not None and prev.odom_pose is not None:
                 g.add_odometry(prev.id, kf.id, se2.between(prev.odom_pose, kf.odom_pose))
         self.keyframes.append(kf)

@@ -101,3 +101,28 @@ def test_tum_and_g2o_round_trip(tmp_path):
     assert len(e) == 2 and e[1][3][0, 0] == pytest.approx(400.0) and e[1][3][2, 2] == pytest.approx(2500.0)
     with pytest.raises(M.KosmapError):
         read_tum(tmp_path / "missing.tum")
+
+
+def test_ate_and_rpe_agree_with_evo(tmp_path):
+    pytest.importorskip("evo")
+    from evo.core import metrics as em
+    from evo.core import sync
+    from evo.tools import file_interface
+
+    rng = np.random.default_rng(5)
+    t = 100.0 + np.arange(200) * 0.1
+    ref = np.cumsum(rng.normal(0, 0.1, (200, 3)), axis=0)
+    est = se2.compose(np.repeat([[1.0, -2.0, 0.4]], 200, 0), se2.compose(ref, rng.normal(0, 0.02, (200, 3))))
+    write_tum(tmp_path / "ref.tum", t, ref)
+    write_tum(tmp_path / "est.tum", t + 0.001, est)
+    r = file_interface.read_tum_trajectory_file(str(tmp_path / "ref.tum"))
+    e = file_interface.read_tum_trajectory_file(str(tmp_path / "est.tum"))
+    r, e = sync.associate_trajectories(r, e, max_diff=0.01)
+    e.align(r, correct_scale=False)
+    ape = em.APE(em.PoseRelation.translation_part)
+    ape.process_data((r, e))
+    ours = M.ate(t + 0.001, est, t, ref)
+    assert ours["rmse"] == pytest.approx(ape.get_statistic(em.StatisticsType.rmse), rel=1e-6)
+    rpe = em.RPE(em.PoseRelation.translation_part, delta=1, delta_unit=em.Unit.frames, all_pairs=False)
+    rpe.process_data((r, e))
+    assert M.rpe(t + 0.001, est, t, ref)["trans_rmse"] == pytest.approx(rpe.get_statistic(em.StatisticsType.rmse), rel=1e-6)
