@@ -328,6 +328,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
         spill: Spill = p1["spill"]
         t_maps = time.perf_counter()
+        _warm_grid()
         jobs = _Jobs(workers)
         try:
             grids, traj = _pass2(spill, p1, results, cfg, out, files, bands, jobs)
@@ -615,6 +616,11 @@ class _Done:
 
     def result(self):
         return self.v
+
+
+def _warm_grid() -> None:
+    """Compile (or load) the grid kernel here, before forking: the jobs inherit it instead of compiling each."""
+    GridBuilder().add(np.zeros(3), Scan(0, np.array([1.0, np.inf], np.float32), 0.0, 0.1, 0.1, 10.0))
 
 
 def _scan_of(meta: dict, stamp: int, ranges: np.ndarray, topic: str = "") -> Scan:

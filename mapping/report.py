@@ -126,11 +126,12 @@ def frames_figure(out: Path) -> Path | None:
                         ("dropped_pct", "tab:olive", "dropped (floor, ceiling)"), ("outlier_pct", "tab:red", "outliers")):
         a1.plot(t, d[key], lw=0.7, color=c, label=lab)
     a1.set_ylabel("% of pixels")
-    a1.legend(fontsize=7, ncol=4, loc="upper right")
+    a1.set_ylim(0, 100)
+    a1.legend(fontsize=7, ncol=4, loc="upper center")
     a1.grid(alpha=0.3)
-    a2.plot(t, d["fspf_ms"], lw=0.6, color="tab:blue", label="FSPF+ ms")
-    a2.plot(t, d["kos_ms"], lw=0.6, color="tab:purple", label="KOS ms")
-    a2.set_ylabel("ms per frame")
+    a2.plot(t, d["fspf_ms"], lw=0.6, color="tab:blue", label="FSPF+")
+    a2.plot(t, d["kos_ms"], lw=0.6, color="tab:purple", label="KOS, all levels")
+    a2.set_ylabel("ms per frame (wall, worker)")
     a2.set_xlabel("log time (s)")
     a2.legend(fontsize=7, loc="upper right")
     a2.grid(alpha=0.3)
@@ -180,17 +181,23 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
               + ("Ground truth: yes (ATE below). " if src["ground_truth"] else "No ground truth in the log. ")
               + (f"Blueprint: {src['blueprint']}." if src["blueprint"] else "No blueprint given.")))
     h = headline(m)
-    rows = []
-    for key, f1 in h["f1"].items():
-        c = m["comparisons"][key]
-        rows.append([f"{_label(c['a'], m)} vs {_label(c['b'], m)}", "F1 at 0.10 m", _f(f1)])
-    for k, v in h["ate"].items():
-        rows.append([f"{'KOS' if k == 'kos' else 'laser'} SLAM trajectory", "ATE RMSE", _f(v, 3, " m")])
-    t = m["timing"]
-    rows.append(["whole run", "wall time", f"{_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log "
-                 f"({_f(t.get('realtime_factor'), 1)}× real time, {m['table_5_5']['workers']} worker process(es))"])
     B.append(("h", 2, "Headline"))
-    B.append(("table", ["what", "measure", "value"], rows))
+    t = m["timing"]
+    if h["f1"]:
+        rows = []
+        for key in h["f1"]:
+            c = m["comparisons"][key]
+            v = c["tolerances"][TOL]
+            rows.append([f"{_label(c['a'], m)} vs {_label(c['b'], m)}", _f(v["f1"]), _f(v["precision"]), _f(v["recall"]),
+                         _f(v["coverage"]), _f(v["recall_observed"])])
+        B.append(("table", ["map A vs reference B, at 0.10 m", "F1", "precision", "recall", "coverage",
+                            "recall of observed"], rows))
+    rows = [[f"{'KOS' if k == 'kos' else 'laser'} SLAM", _f(v, 3, " m"),
+             _f(m["slam"][k].get("ate_odometry", {}).get("rmse"), 3, " m")] for k, v in h["ate"].items()]
+    if rows:
+        B.append(("table", ["trajectory", "ATE RMSE", "wheel odometry's ATE"], rows))
+    B.append(("p", f"Whole run: {_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log = "
+                   f"{_f(t.get('realtime_factor'), 1)}× real time ({m['table_5_5']['workers']} worker process(es))."))
 
     # maps
     maps = m.get("maps", {})
@@ -244,7 +251,7 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          _f(s.get("ate_frontend", {}).get("rmse"), 3), _f(s.get("ate_odometry", {}).get("rmse"), 3),
                          _f(sum(v for v in sec.values()), 1)])
         B.append(("table", ["source", "scans", "keyframes", "loops", "ATE RMSE (m)", "ATE max (m)",
-                            "front end alone (m)", "wheel odometry (m)", "SLAM CPU (s)"], rows))
+                            "front end alone (m)", "wheel odometry (m)", "SLAM time (s)"], rows))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))
 
@@ -261,9 +268,9 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
             B.append(("images", [(frames_png, "per frame over the log (stats.csv)")]))
         t55 = m["table_5_5"]
         B.append(("h", 2, "Speed (thesis Table 5.5)"))
-        rows = [["FSPF+ per frame (one core)", f"{_f(t55['fspf_ms']['mean'], 2)} ms (median {_f(t55['fspf_ms']['median'], 2)})"],
-                ["KOS per frame, all levels (one core)", f"{_f(t55['kos_ms']['mean'], 2)} ms (median {_f(t55['kos_ms']['median'], 2)})"],
-                ["frames per second per core", _f(t55["per_core_hz"], 1, " Hz")],
+        rows = [["FSPF+ per frame (wall time in a worker)", f"{_f(t55['fspf_ms']['mean'], 2)} ms (median {_f(t55['fspf_ms']['median'], 2)})"],
+                ["KOS per frame, all levels (wall time in a worker)", f"{_f(t55['kos_ms']['mean'], 2)} ms (median {_f(t55['kos_ms']['median'], 2)})"],
+                ["frames per second per worker (1000 / (FSPF+ + KOS ms))", _f(t55["per_core_hz"], 1, " Hz")],
                 ["system: frames per second read and processed", f"{_f(t55['system_hz'], 1)} Hz with {t55['workers']} worker process(es)"],
                 ["map creation (SLAM solve + grids)", _f(t55["map_creation_s"], 2, " s")],
                 ["comparisons", _f(t.get("compare_s"), 2, " s")],
@@ -314,7 +321,8 @@ h1{font-size:1.6em;margin-bottom:.3em} h2{border-bottom:1px solid #ddd;padding-b
 table{border-collapse:collapse;margin:8px 0 14px} td,th{border:1px solid #ccc;padding:4px 10px;text-align:left}
 th{background:#f3f3f3} td:not(:first-child){font-variant-numeric:tabular-nums}
 .warn{background:#fde8e8;border:2px solid #c00;color:#900;padding:10px 14px;font-weight:600;border-radius:4px}
-.grid{display:flex;flex-wrap:wrap;gap:14px} figure{margin:0;flex:1 1 360px;max-width:100%}
+.grid{display:grid;grid-template-columns:repeat(auto-fill,minmax(340px,1fr));gap:14px;align-items:start}
+.wide{grid-template-columns:1fr} figure{margin:0}
 figure img{width:100%;border:1px solid #ccc;image-rendering:pixelated;background:#a0a0a0}
 figcaption{font-size:.85em;color:#555;margin-top:3px}
 """
@@ -340,7 +348,8 @@ def _html(blocks: list[tuple]) -> str:
         elif b[0] == "images":
             figs = "".join(f"<figure><img alt='{e(cap)}' src='{_b64(p)}'><figcaption>{e(cap)}</figcaption></figure>"
                            for p, cap in b[1] if Path(p).is_file())
-            parts.append(f"<div class='grid'>{figs}</div>")
+            wide = " wide" if len(b[1]) == 1 else ""
+            parts.append(f"<div class='grid{wide}'>{figs}</div>")
     return (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{e(title)}</title>"
             f"<style>{CSS}</style></head><body>{''.join(parts)}</body></html>\n")
 

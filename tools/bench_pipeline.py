@@ -1,0 +1,167 @@
+"""Benchmark: `kosmap build` on the simulated office: real-time factor (log duration / wall time) and peak memory
+for a 1-minute and a 10-minute log, and where the time goes.
+
+    .venv/bin/python -m tools.bench_pipeline [--minutes 1 10] [--workers 2] [--no-serial]
+
+The logs are `kosmap simulate office` with the simulator's default rates (Kinect 30 Hz, laser 40 Hz, zstd), the
+10-minute one driving the bundled 140 m path twice; they are cached under .kosmap-cache/bench/. Each build runs in
+its own process, so its peak resident memory (the main process, and the largest worker) is its own. The 1-minute
+log is also built serially (`--workers 0`), the baseline the parallel run is compared with in the same run.
+Target (issue 8): ≥ 10× real time on 2 cores, memory flat in the log's length. Writes docs/bench/pipeline.json
+and docs/bench/pipeline.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tools.data import REPO
+
+CACHE = REPO / ".kosmap-cache" / "bench"
+OUT = REPO / "docs" / "bench"
+
+
+def office_log(minutes: float) -> tuple[Path, Path]:
+    """The office log of this length (default simulator settings), simulated once; and its blueprint."""
+    from mapping.mapio import write_map_server
+    from tools.simulate import SimConfig, load_world, simulate
+    from tools.simulate.world import PathSpec
+
+    world = load_world("office")
+    CACHE.mkdir(parents=True, exist_ok=True)
+    bp = CACHE / "office_blueprint.yaml"
+    if not bp.is_file():
+        write_map_server(world.blueprint(0.05), bp, ".png")
+    log = CACHE / f"office_{minutes:g}min.mcap"
+    if not log.is_file():
+        way = world.path.waypoints
+        laps = np.vstack([way] + [way[1:]] * 3)  # the loop closes in the south corridor: drive it again
+        t0 = time.perf_counter()
+        s = simulate(world, SimConfig(duration=60.0 * minutes), log, PathSpec(laps, world.path.start_yaw))
+        print(f"simulated {log.name}: {s['duration_s']:.0f} s, {s['bytes'] / 1e9:.2f} GB in "
+              f"{time.perf_counter() - t0:.0f} s", flush=True)
+    return log, bp
+
+
+def one(log: str, out: str, workers: int, blueprint: str | None) -> None:
+    """Child mode: build, then print the metrics that matter and this process's peak memory as JSON."""
+    from mapping.config import Config
+    from mapping.pipeline import build
+
+    t0 = time.perf_counter()
+    res = build(log, out, Config(), blueprint=blueprint, workers=workers)
+    wall = time.perf_counter() - t0
+    me = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    m = res.metrics
+    print(json.dumps({"wall_s": wall, "cpu_main_s": me.ru_utime + me.ru_stime, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
+                      "maxrss_main_mb": me.ru_maxrss / 1024, "maxrss_worker_mb": kids.ru_maxrss / 1024,
+                      "metrics": {k: m[k] for k in ("log", "frames", "timing", "table_5_5", "table_5_2")},
+                      "slam": {k: {kk: v.get(kk) for kk in ("scans", "keyframes", "loops", "seconds", "ate")}
+                               for k, v in m["slam"].items()},
+                      "f1": {k: c["tolerances"]["0.10"]["f1"] for k, c in m["comparisons"].items()}}))
+
+
+def run(log: Path, bp: Path, workers: int) -> dict:
+    out = CACHE / f"out_{log.stem}_w{workers}"
+    p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--one", str(log), str(out), str(workers), str(bp)],
+                       capture_output=True, text=True, cwd=REPO)
+    if p.returncode != 0:
+        raise SystemExit(f"build of {log.name} failed:\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def breakdown(r: dict) -> dict:
+    """CPU seconds per second of log, by stage."""
+    m = r["metrics"]
+    log_s = m["timing"]["log_s"] or 1.0
+    t55 = m["table_5_5"]
+    n = m["frames"]["processed"]
+    fspf = (t55["fspf_ms"]["mean"] or 0.0) * n / 1e3
+    kos = (t55["kos_ms"]["mean"] or 0.0) * n / 1e3
+    slam = {k: sum(v["seconds"].get(x, 0.0) for x in ("frontend", "graph", "loops")) for k, v in r["slam"].items()}
+    pass1_main = m["timing"]["read_and_frames_cpu_s"]
+    return {"fspf_plus": fspf / log_s, "kos": kos / log_s, "slam_kos": slam.get("kos", 0.0) / log_s,
+            "slam_laser": slam.get("laser", 0.0) / log_s,
+            "read_decode_spill": max(0.0, pass1_main - sum(slam.values())) / log_s,
+            "maps_and_mcap_wall": m["timing"]["maps_s"] / log_s, "compare_wall": m["timing"]["compare_s"] / log_s,
+            "report_wall": m["timing"].get("report_s", 0.0) / log_s}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--minutes", type=float, nargs="+", default=[1.0, 10.0])
+    ap.add_argument("--workers", type=int, default=2)
+    ap.add_argument("--no-serial", action="store_true", help="skip the serial baseline")
+    ap.add_argument("--one", nargs=4, metavar=("LOG", "OUT", "WORKERS", "BLUEPRINT"), help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.one:
+        one(a.one[0], a.one[1], int(a.one[2]), a.one[3])
+        return
+    rows = []
+    for minutes in a.minutes:
+        log, bp = office_log(minutes)
+        runs = [a.workers] + ([0] if minutes == min(a.minutes) and not a.no_serial else [])
+        for w in runs:
+            r = run(log, bp, w)
+            r.update({"minutes": minutes, "workers": w, "log_gb": log.stat().st_size / 1e9,
+                      "breakdown_cpu_per_log_s": breakdown(r)})
+            t = r["metrics"]["timing"]
+            print(f"{minutes:g} min, workers {w}: {r['wall_s']:.0f} s wall, {t['realtime_factor']:.2f}× real time, "
+                  f"peak RSS main {r['maxrss_main_mb']:.0f} MB, worker {r['maxrss_worker_mb']:.0f} MB", flush=True)
+            rows.append(r)
+    doc = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+           "target_realtime_factor": 10.0, "runs": rows}
+    OUT.mkdir(parents=True, exist_ok=True)
+    (OUT / "pipeline.json").write_text(json.dumps(doc, indent=2) + "\n")
+    (OUT / "pipeline.md").write_text(markdown(doc))
+    print(f"wrote {OUT / 'pipeline.json'} and {OUT / 'pipeline.md'}")
+
+
+def markdown(doc: dict) -> str:
+    L = ["# `kosmap build` speed and memory", "",
+         "`python -m tools.bench_pipeline`: the simulated office (Kinect 512×424 at 30 Hz, laser 1081 beams at 40 Hz, "
+         "wheel odometry 50 Hz, zstd MCAP), built with the default config (every depth frame through FSPF+ and "
+         "three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
+         "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",
+         f"Machine: {doc['machine']['cpus']} cores, Python {doc['machine']['python']}.", "",
+         "| log | workers | depth frames | wall (s) | real-time factor | frames/s | peak RSS main (MB) | peak RSS worker (MB) |",
+         "|---|---|---|---|---|---|---|---|"]
+    base = {}
+    for r in doc["runs"]:
+        t = r["metrics"]["timing"]
+        fr = r["metrics"]["frames"]["processed"]
+        L.append(f"| {r['minutes']:g} min ({t['log_s']:.0f} s, {r['log_gb']:.1f} GB) | {r['workers']} | {fr} | "
+                 f"{r['wall_s']:.0f} | {t['realtime_factor']:.2f}× | {r['metrics']['table_5_5']['system_hz']:.0f} | "
+                 f"{r['maxrss_main_mb']:.0f} | {r['maxrss_worker_mb']:.0f} |")
+        if r["workers"] == 0:
+            base[r["minutes"]] = r
+    for r in doc["runs"]:
+        b = base.get(r["minutes"])
+        if b is not None and r["workers"] > 0:
+            L += ["", f"{r['workers']} workers vs serial on the {r['minutes']:g}-minute log: "
+                      f"{b['wall_s'] / r['wall_s']:.2f}× faster."]
+    L += ["", "Where the time goes (CPU seconds per second of log; the stages marked wall are wall seconds):", "",
+          "| log | workers | FSPF+ | KOS | read, decode, spill | SLAM on KOS | SLAM on laser | maps + MCAP (wall) | compare (wall) | report (wall) |",
+          "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in doc["runs"]:
+        b = r["breakdown_cpu_per_log_s"]
+        L.append(f"| {r['minutes']:g} min | {r['workers']} | {b['fspf_plus']:.3f} | {b['kos']:.3f} | "
+                 f"{b['read_decode_spill']:.3f} | {b['slam_kos']:.3f} | {b['slam_laser']:.3f} | "
+                 f"{b['maps_and_mcap_wall']:.3f} | {b['compare_wall']:.3f} | {b['report_wall']:.3f} |")
+    L += ["", "10× real time on 2 cores leaves 0.2 CPU seconds per second of log for everything.", ""]
+    return "\n".join(L)
+
+
+if __name__ == "__main__":
+    main()
