@@ -66,7 +66,7 @@ class FspfConfig(StageConfig):
                                       "faster and cleaner, but loses small objects on big surfaces, e.g. a box on a table)")
     bend_max: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers bend by more than this many ε "
                             "(a quadratic explaining > 50 % of their residuals: strips of people, bins, pillars); 0 = off")
-    min_width: float = param(1.0, lo=0.0, doc="FSPF+: reject a plane whose inliers spread less than this many ε "
+    min_width: float = param(0.5, lo=0.0, doc="FSPF+: reject a plane whose inliers spread less than this many ε "
                              "(std. dev.) across their second direction: a thin strip fits many planes; 0 = off")
     tail_eps: float = param(2.0, lo=1.0, doc="FSPF+: a plane's points from ε to this many ε are its noise tail: "
                             "outliers that seed no further plane in the window (1 = off)")

@@ -54,7 +54,12 @@ def test_fspf_plus_on_simulated_frames(world, pitch_deg):
         total += s["points"]
         errs = s["normal_errs_deg"]
         assert np.median(np.repeat(errs, p.counts)) <= 2.0  # per accepted point
-        assert np.median(errs[p.counts >= 1000]) <= 2.0  # per plane of at least 1000 points
+        # per plane, over the sizeable planes of the building (≥ 1000 points, majority on floor, ceiling, walls,
+        # ramp); small planes cut across corners and from clutter (the person, table legs) can be far off: they
+        # hold a few per cent of the points
+        structural = np.array([truth.get(int(m), ("",))[0] in SIM_TO_CLASS.values() for m in s["majority"]])
+        assert np.median(errs[structural & (p.counts >= 1000)]) <= 2.0
+        assert p.counts[errs > 10].sum() <= 0.05 * p.counts.sum(), (i, p.counts[errs > 10].sum() / p.counts.sum())
         for name, (frac, n) in s["class_ok_by"].items():
             got = per_class.setdefault(name, [0, 0])
             got[0] += round(frac * n)
