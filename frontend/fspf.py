@@ -3,7 +3,8 @@
 Both take a depth image in metres, the pinhole camera and an explicit seed, and return `Planes`
 (frontend/planes.py). The inner loops run compiled with numba (STACK.md measured numpy-only FSPF+ at
 18–20 ms per 512×424 frame against ~3 ms compiled); `backend="numpy"` keeps a vectorised numpy path of the
-same algorithms for the benchmark's honesty (same statistics, not the same random draws).
+same algorithms for the benchmark's honesty (same steps and tests, not the same random draws: its RANSAC
+scores hypotheses in batches and refits on all inliers).
 
 FSPF+ (thesis Alg. 3): p0 a random eligible, unconsumed pixel; p1, p2 eligible within Ω of it; the search
 window W = fx·Δ/z̄, H = fy·Δ/z̄ around p0 (the projection of the world size Δ at their mean depth z̄;
@@ -794,17 +795,31 @@ def _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
         z = depth[wr, wc].astype(np.float64)
         P = np.column_stack(((wc - cx) * z / fx, (wr - cy) * z / fy, z))
         active = np.arange(k)
-        for _ in range(cfg.planes_per_window):
-            if len(active) <= cfg.n_min:
+        eps = cfg.epsilon_m
+        for pw in range(cfg.planes_per_window):
+            if len(active) <= cfg.n_min or (pw > 0 and len(active) < cfg.extra_min_fraction * k):
                 break
-            n, d, inl = ransac_plane(P[active], cfg.epsilon_m, cfg.beta, rng, cfg.ransac_subset, cfg.ransac_max_iter)
+            n, d, inl = ransac_plane(P[active], eps, cfg.beta, rng, cfg.ransac_subset, cfg.ransac_max_iter)
             n_in = int(inl.sum())
             if n_in <= cfg.n_min:
                 break
+            # the noise tail (ε … tail_eps·ε) leaves the window as outliers
+            res = np.abs(P[active] @ n + d)
+            tail = ~inl & (res < max(cfg.tail_eps, 1.0) * eps)
+            n_outl += int(tail.sum())
             cls = int(classes_of(n[None], np.array([d]))[0])
             sel = active[inl]
+            active = active[~inl & ~tail]
             if drop[cls]:
                 n_drop += n_in
+                continue
+            q = P[sel] - P[sel].mean(axis=0)
+            ev = np.linalg.eigvalsh(q.T @ q / n_in)
+            if ev[1] < (cfg.min_width * eps) ** 2 or (cfg.bend_max > 0 and ev[0] > (0.2 * eps) ** 2
+                                                    and _bends(P[sel][:: max(1, n_in // 256)][:256], n, d, eps,
+                                                               cfg.bend_max)):
+                n_outl += n_in  # a thin strip, or a strip of a curved surface
+                continue
             else:
                 plane.append(np.full(n_in, len(normals), np.int32))
                 pix.append(np.column_stack((wr[sel], wc[sel])).astype(np.int32))
@@ -813,10 +828,31 @@ def _fspf_plus_np(depth, cam, cfg, dcfg, classes_of, drop, rng):
                 offsets.append(d)
                 classes.append(cls)
                 counts.append(n_in)
-            active = active[~inl]
         n_outl += len(active)
     stats = FrameStats(H * W, H * W - n_elig, int(sum(counts)), n_drop, n_outl, remaining)
     return _assemble(pix, pts, plane, normals, offsets, classes, counts, stats, (H, W), "fspf+")
+
+
+def _bends(p: np.ndarray, n: np.ndarray, d: float, eps: float, bend_max: float, r2_max: float = 0.5) -> bool:
+    """_curved_nb in numpy: a quadratic in the in-plane coordinates explains > r2_max of the residuals and
+    bends by more than bend_max·ε."""
+    r = p @ n + d
+    a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    e1 = np.cross(a, n)
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(n, e1)
+    u, v = (p - p.mean(axis=0)) @ e1, (p - p.mean(axis=0)) @ e2
+    scale = max(np.abs(u).max(), np.abs(v).max(), 1e-12)
+    u, v = u / scale, v / scale
+    A = np.column_stack((np.ones_like(u), u, v, u * u, v * v, u * v))
+    if len(r) < 24:
+        return False
+    coef = np.linalg.lstsq(A, r, rcond=None)[0]
+    tot = np.sum((r - r.mean()) ** 2)
+    if tot <= 0:
+        return False
+    bend = A[:, 3:] @ coef[3:]
+    return 1.0 - np.sum((r - A @ coef) ** 2) / tot > r2_max and bend.max() - bend.min() > bend_max * eps
 
 
 def _fspf_np(depth, cam, cfg, dcfg, classes_of, drop, rng, batch: int = 256):
