@@ -38,7 +38,7 @@ from numba import njit
 
 from frontend.camera import DepthConfig, camera_axes, depth_constraints
 from frontend.params import StageConfig, param
-from frontend.planes import (PLANE_CLASSES, FrameStats, Planes, classify, fit_plane, merge_planes, moments_from_sums,
+from frontend.planes import (PLANE_CLASSES, FrameStats, Planes, fit_plane, merge_planes, moments_from_sums,
                              ransac_plane, rectify)
 from frontend.records import CameraModel, Transform
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from frontend.camera import depth_constraints
-from frontend.fspf import FspfConfig, filter_planes, fspf, fspf_plus
+from frontend.fspf import FspfConfig, filter_planes, fspf_plus
 from frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES, RAISED, RIGHT, SLANTED, FrameStats,
                              Planes, classify, fit_plane, merge_planes, ransac_plane)
 from frontend.records import CameraModel
