@@ -4,9 +4,9 @@ at 10 Hz): KOS map vs blueprint F1 ≥ 0.90 at 0.10 m, laser map vs blueprint F1
 The F1 thresholds are not met today; the two tests below are marked xfail with the numbers measured, and a third
 asserts what holds now. Why, as measured: the bundled path never enters the 16 side rooms, so recall against the
 whole blueprint is bounded by what the sensors saw (the laser sees 93 % of the blueprint's walls through the doors,
-the 4.5 m Kinect 50–60 %); the laser map's precision is 0.95 (furniture the plan lacks); the KOS map's walls are
-faint (a wall seen at grazing angles by a narrow scan gets as many misses as hits) and KOS SLAM's ATE (0.38 m) is
-worse than the wheel odometry's (0.26 m).
+the 4.5 m Kinect ~60 %); the laser map's precision is 0.95 (furniture the plan lacks); the KOS map's walls are
+faint (a wall seen at grazing angles by a narrow scan gets about as many misses as hits) and KOS SLAM's trajectory
+(ATE 0.22 m; wheel odometry 0.62 m) bends the walls by more than the 0.10 m tolerance.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def _desc(t: dict) -> str:
 @pytest.mark.slow
 def test_office_builds_and_reports_both_maps_against_the_blueprint(office_run):
     m = office_run.metrics
-    assert not office_run.partial and m["frames"]["processed"] == 1806 and m["frames"]["laser_scans_used"] == 3612
+    assert not office_run.partial and m["frames"]["processed"] == 1764 and m["frames"]["laser_scans_used"] == 3527
     assert m["slam"]["laser"]["ate"]["rmse"] < 0.05  # laser SLAM: centimetres over 140 m with loop closures
     assert m["slam"]["laser"]["loops"] > 10
     laser = _t(office_run, "laser_vs_blueprint")
@@ -52,9 +52,10 @@ def test_office_builds_and_reports_both_maps_against_the_blueprint(office_run):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="issue 8 acceptance not met: KOS map vs blueprint F1 at 0.10 m measured 0.33 "
-                          "(precision 0.70, recall 0.22, coverage 0.53); KOS at the laser's poses 0.54 — needs KOS "
-                          "SLAM accuracy (ATE 0.38 m) and wall coverage", strict=False)
+@pytest.mark.xfail(reason="issue 8 acceptance not met: KOS map vs blueprint F1 at 0.10 m measured 0.42 "
+                          "(precision 0.64, recall 0.32, coverage 0.58, recall of observed walls 0.54); the KOS map at "
+                          "the laser's poses 0.55 (precision 0.85): needs KOS SLAM accuracy (ATE 0.22 m) and walls "
+                          "the grid keeps", strict=False)
 def test_office_kos_map_f1_vs_blueprint_at_least_090(office_run):
     t = _t(office_run, "kos_obstacle_vs_blueprint")
     assert t["f1"] >= 0.90, _desc(t)
@@ -62,7 +63,8 @@ def test_office_kos_map_f1_vs_blueprint_at_least_090(office_run):
 
 @pytest.mark.slow
 @pytest.mark.xfail(reason="issue 8 acceptance not met: laser map vs blueprint F1 at 0.10 m measured 0.89 "
-                          "(precision 0.95, recall 0.83, coverage 0.93): the path never enters the side rooms",
+                          "(precision 0.95, recall 0.84, coverage 0.93, recall of observed walls 0.91): the path "
+                          "never enters the side rooms, and furniture is not in the plan",
                    strict=False)
 def test_office_laser_map_f1_vs_blueprint_at_least_095(office_run):
     t = _t(office_run, "laser_vs_blueprint")
