@@ -80,9 +80,12 @@ class FrontendResult:
     info: np.ndarray = field(default_factory=lambda: np.zeros((3, 3)))  # (1/N)·Σ JᵀJ of the match (frame of the map)
     n_points: int = 0  # points the match used
 
-    def covariance(self, n_eff: float, floor: float = 1e-6) -> np.ndarray:
+    def covariance(self, n_eff: float, floor: float = 1e-6) -> np.ndarray | None:
         """The match's covariance in the map frame, (n·H)⁻¹ with n = min(n_points, n_eff): returns are not
-        independent (one wall gives many), so at most `n_eff` count. Huge along unobserved directions."""
+        independent (one wall gives many), so at most `n_eff` count. Huge along unobserved directions.
+        None when the front end gives no information matrix (kiss-icp)."""
+        if self.matched and (self.n_points <= 0 or not np.any(self.info)):
+            return None
         n = min(float(self.n_points), float(n_eff))
         if not self.matched or n <= 0:
             return np.diag([1.0, 1.0, 0.1])  # unmatched: metres and ~20° (the prediction only)
