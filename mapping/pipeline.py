@@ -278,6 +278,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     out = Path(out_dir)
     say = say or (lambda _m: None)
     workers = default_workers() if workers is None else int(workers)
+    if workers < 0:
+        raise KosmapError(f"--workers {workers} must be 0 (serial, in this process) or more")
     bcfg = cfg.build
     if out.exists() and not out.is_dir():
         raise KosmapError(f"--out {out} is a file; give a folder for the maps and the report")

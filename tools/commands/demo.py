@@ -52,11 +52,13 @@ def warm_up():
                             cwd=str(REPO))
 
 
-def demo_log(cache: Path = CACHE, fresh: bool = False, quiet: bool = False) -> tuple[Path, Path, float | None]:
-    """The demo's log and blueprint, simulated once per settings (and world file); (log, blueprint.yaml, seconds
-    spent simulating or None when cached)."""
+def demo_log(cache: Path | None = None, fresh: bool = False, quiet: bool = False) -> tuple[Path, Path, float | None]:
+    """The demo's log and blueprint, simulated once per settings (and world file) into `cache` (default
+    .kosmap-cache/demo); (log, blueprint.yaml, seconds spent simulating or None when cached)."""
     from mapping.mapio import write_map_server
     from tools.simulate import SimConfig, load_world, simulate
+
+    cache = Path(cache) if cache is not None else CACHE
 
     cfg = SimConfig(**DEMO_SIM)
     world = load_world(DEMO_WORLD)
@@ -77,7 +79,7 @@ def demo_log(cache: Path = CACHE, fresh: bool = False, quiet: bool = False) -> t
     if not quiet and sys.stderr.isatty():
         from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-        with Progress(TextColumn("simulating the office"), BarColumn(), TextColumn("{task.fields[t]:.0f} s of log"),
+        with Progress(TextColumn(f"simulating the {DEMO_WORLD}"), BarColumn(), TextColumn("{task.fields[t]:.0f} s of log"),
                       TimeRemainingColumn(), transient=True) as prog:
             task = prog.add_task("sim", total=1.0, t=0.0)
             simulate(world, cfg, log, progress=lambda t, T: prog.update(task, completed=t / T, t=t))
@@ -107,7 +109,7 @@ def register(app: typer.Typer) -> None:
             print(f"log: {log} " + ("(cached)" if sim_s is None else f"(simulated in {sim_s:.0f} s)"), file=sys.stderr)
         res = build(log, out, Config(), blueprint=bp, workers=workers, progress=not quiet and sys.stderr.isatty(),
                     say=None if quiet else (lambda m: print(m, file=sys.stderr)))
-        print(f"kosmap demo: the office ({res.metrics['log']['duration_s']:.0f} s, Kinect at "
+        print(f"kosmap demo: the {DEMO_WORLD} ({res.metrics['log']['duration_s']:.0f} s, Kinect at "
               f"{DEMO_SIM['depth_rate']:g} Hz, laser at {DEMO_SIM['laser_rate']:g} Hz) mapped in "
               f"{time.perf_counter() - t0:.0f} s")
         print_headline(res.metrics, out)
