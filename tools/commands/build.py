@@ -45,7 +45,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
         with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
-        Ctrl-C stops reading and writes what is done, marked partial."""
+        Ctrl-C stops reading and writes what is done, marked partial (exit code 130); a second Ctrl-C aborts."""
         from mapping.pipeline import build as run
 
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic)
@@ -54,3 +54,5 @@ def register(app: typer.Typer) -> None:
                   say=None if quiet else (lambda m: print(m, file=sys.stderr)))
         if not quiet:
             print_headline(res.metrics, out)
+        if res.partial:
+            raise typer.Exit(130)  # like an interrupted command, though its outputs were written (marked partial)
