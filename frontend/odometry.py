@@ -36,8 +36,8 @@ class OdometryConfig(StageConfig):
 
     section = "odometry"
     matcher: str = param("submap", choices=("submap", "kiss-icp"), doc="scan-to-submap matcher or kiss-icp")
-    keyframe_distance: float = param(0.1, lo=0.0, doc="insert a scan into the local submap after this travel", unit="m")
-    keyframe_angle_deg: float = param(5.0, lo=0.0, doc="… or after this rotation", unit="deg")
+    keyframe_distance: float = param(0.15, lo=0.0, doc="insert a scan into the local submap after this travel", unit="m")
+    keyframe_angle_deg: float = param(7.5, lo=0.0, doc="… or after this rotation", unit="deg")
     voxel_size: float = param(0.1, lo=0.0, lo_open=True, doc="kiss-icp voxel size", unit="m")
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(30.0, lo=0.0, lo_open=True, doc="ignore returns farther than this", unit="m")
@@ -45,7 +45,7 @@ class OdometryConfig(StageConfig):
     resolution: float = param(0.05, lo=0.0, lo_open=True, doc="fine likelihood field cell size", unit="m")
     coarse_resolution: float = param(0.1, lo=0.0, lo_open=True, doc="coarse likelihood field cell size", unit="m")
     submap_size: float = param(30.0, lo=1.0, doc="side of a local submap's square field", unit="m")
-    submap_keyframes: int = param(20, lo=1, doc="a new local submap starts every this many keyframes; each holds twice as many")
+    submap_keyframes: int = param(14, lo=1, doc="a new local submap starts every this many keyframes; each holds twice as many")
     sigma_coarse: float = param(0.10, lo=0.0, lo_open=True, doc="field blur for the search and the first Gauss–Newton", unit="m")
     sigma_fine: float = param(0.02, lo=0.0, lo_open=True, doc="field blur for the final Gauss–Newton", unit="m")
     search_linear: float = param(0.1, lo=0.0, doc="correlative search half window in x and y (0 = no search)", unit="m")
