@@ -107,6 +107,42 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
     return path
 
 
+def summary_figure(out: Path, metrics: dict, path: Path | None = None) -> Path | None:
+    """summary.png: the KOS map and the laser map side by side (each with its trajectory), titled with their F1
+    against the blueprint and their SLAM's ATE: the run at a glance."""
+    import cv2
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    main = f"kos_{metrics.get('slam_scan', 'obstacle')}"
+    panels = [k for k in (main, "laser") if k in metrics.get("maps", {})]
+    if not panels:
+        return None
+    fig, axes = plt.subplots(len(panels), 1, figsize=(9, 4.4 * len(panels)), dpi=110, squeeze=False)
+    for ax, name in zip(axes[:, 0], panels):
+        img = cv2.imread(str(out / f"map_{name}.png"))[:, :, ::-1]
+        ax.imshow(img, interpolation="nearest")
+        ax.set_axis_off()
+        src = "kos" if name.startswith("kos") else "laser"
+        bits = [metrics["maps"][name].get("label", name).replace(" (SLAM scan)", "") + " map"]
+        c = metrics.get("comparisons", {}).get(f"{name}_vs_blueprint")
+        if c:
+            bits.append(f"F1 vs blueprint {c['tolerances'][TOL]['f1']:.2f} at 0.10 m")
+        ate = metrics.get("slam", {}).get(src, {}).get("ate")
+        if ate:
+            bits.append(f"{'KOS' if src == 'kos' else 'laser'} SLAM ATE {ate['rmse']:.2f} m")
+        ax.set_title(" · ".join(bits), fontsize=10)
+    fig.tight_layout()
+    path = path or out / "summary.png"
+    tmp = path.with_name(path.stem + ".partial.png")
+    fig.savefig(tmp)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
 def frames_figure(out: Path) -> Path | None:
     """frames.png: per-frame FSPF+ / KOS time and the inlier / outlier / ineligible shares over the log."""
     p = out / "stats.csv"
@@ -359,7 +395,11 @@ def write_report(out: str | Path, metrics: dict) -> dict[str, Path]:
     out = Path(out)
     traj = trajectory_figure(out, metrics)
     frames = frames_figure(out) if metrics.get("sources", {}).get("kos") else None
+    summary = summary_figure(out, metrics)
     blocks = _sections(out, metrics, traj, frames)
+    if summary is not None:  # the run at a glance, right under the headline numbers
+        at = next((i for i, b in enumerate(blocks) if b[0] == "h" and b[2] == "Maps"), len(blocks))
+        blocks.insert(at, ("images", [(summary, "the depth camera's (KOS) map and the laser's, each from its own SLAM")]))
     files = {}
     for name, text in (("report.md", _md(blocks, out)), ("report.html", _html(blocks))):
         p = out / name
@@ -371,4 +411,6 @@ def write_report(out: str | Path, metrics: dict) -> dict[str, Path]:
         files["trajectories_png"] = traj
     if frames is not None:
         files["frames_png"] = frames
+    if summary is not None:
+        files["summary_png"] = summary
     return files
