@@ -55,6 +55,9 @@ STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dro
                  "planes", "points", "fspf_ms", "kos_ms")
 TABLE_5_2 = ("ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "planes", "fspf_ms", "kos_ms")
 PLANES_TOPIC = "/kosmap/planes/points"
+OUTPUTS = ("metrics.json", "report.html", "report.md", "map_*.png", "map_*.pgm", "map_*.yaml", "overlay_*.png",
+           "trajectory_*.tum", "ground_truth.tum", "odometry.tum", "stats.csv", "kosmap.mcap", "summary.png",
+           "frames.png", "trajectories.png")  # what a build writes into its folder (removed first when present)
 
 
 # ---- SLAM feeding ---------------------------------------------------------------------------------------------------
@@ -305,8 +308,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     kos_gcfg = _merged(cfg.graph, bcfg.kos_graph, "kos_graph")
 
     out.mkdir(parents=True, exist_ok=True)
-    for stale in ("metrics.json", "report.html", "report.md"):  # a previous run's results must not survive a failure
-        (out / stale).unlink(missing_ok=True)
+    for pattern in OUTPUTS:  # a previous run's outputs must not mix with this run's (nor survive its failure)
+        for stale in out.glob(pattern):
+            stale.unlink(missing_ok=True)
     files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
     spill_dir = Path(tempfile.mkdtemp(prefix=".kosmap-spill-", dir=out))
     warnings: list[str] = []

