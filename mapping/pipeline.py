@@ -379,7 +379,7 @@ def _expected_units(det, counts: dict, duration: float, bcfg) -> int:
             n += min(c, int(duration * bcfg.depth_rate) + 1) if bcfg.depth_rate > 0 else c
         return n
     c = counts.get(det.scan, 0)
-    return min(c, int(duration * bcfg.laser_rate) + 1) if bcfg.laser_rate > 0 else c
+    return min(c, int(duration * bcfg.laser_rate) + 1) if bcfg.laser_rate > 0 and c > 1.2 * bcfg.laser_rate * duration else c
 
 
 def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: int, progress: bool,
@@ -401,6 +401,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
              "laser_meta": None, "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
              "stop": False, "partial": False}
     laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
+    if det.scan and duration > 0 and counts.get(det.scan, 0) / duration <= 1.2 * bcfg.laser_rate:
+        laser_period = 0  # a laser no faster than the limit keeps every scan (bursty stamps would lose some)
     cloud_period = int(bcfg.mcap_planes_period * 1e9)
     run = ScanRun()
     total = _expected_units(det, counts, duration, bcfg)
