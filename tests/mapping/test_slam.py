@@ -41,7 +41,7 @@ def _run(log, use_odom=True, drop=(), empty=(), **odo):
 def test_synthetic_laser_with_odometry(log):
     r, err = _run(log)
     odom = ate(r.stamps, log.odom, r.stamps, log.truth)
-    assert err["rmse"] <= 0.05, err
+    assert err["rmse"] <= 0.05, err  # measured 0.035 m (odometry alone 0.62 m)
     assert odom["rmse"] > 5 * err["rmse"]  # the odometry drifts: the scans did the work
     assert len(r.loops) > 20  # the second lap closes on the first
     assert len(r.poses) == len(log.scans) and r.matched[1:].all()
@@ -49,14 +49,14 @@ def test_synthetic_laser_with_odometry(log):
 
 def test_synthetic_laser_without_odometry(log):
     r, err = _run(log, use_odom=False)
-    assert err["rmse"] <= 0.08, err
+    assert err["rmse"] <= 0.08, err  # measured 0.037 m
 
 
 def test_time_gaps_and_empty_scans_still_run(log):
     drop = set(range(100, 115)) | set(range(700, 712))  # 3 s and 2.4 s without scans
     empty = {300, 301, 302, 900, 1000}  # scans without a single return
     r, err = _run(log, drop=drop, empty=empty)
-    assert err["rmse"] <= 0.08, err
+    assert err["rmse"] <= 0.08, err  # measured 0.026 m
     assert len(r.poses) == len(log.scans) - len(drop)
     assert not r.matched[[np.searchsorted(r.stamps_ns, log.stamps_ns[i]) for i in sorted(empty)]].any()
 
