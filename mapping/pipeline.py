@@ -244,6 +244,13 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
+def _peak_rss_mb(children: bool = False) -> float:
+    """Peak resident memory so far of this process (or of its largest finished child), MB."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_CHILDREN if children else resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def _planar(tf: Transform | None) -> np.ndarray:
     if tf is None:
         return np.zeros(3)
@@ -318,6 +325,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings,
                     Slam(kos_ocfg, kos_gcfg) if has_depth else None,
                     Slam(cfg.odometry, cfg.graph) if has_laser else None)
+        rss = {"after_read": _peak_rss_mb()}
         say(("interrupted: mapping what was read, " if p1["partial"] else "")
             + f"{p1['frames']} depth frames, {p1['laser_kept']} laser scans read in {p1['seconds']:.1f} s")
         t_slam = time.perf_counter()
@@ -332,6 +340,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         slam_finish_s = time.perf_counter() - t_slam
         if not results:
             raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
+        rss["after_slam"] = _peak_rss_mb()
         spill: Spill = p1["spill"]
         t_maps = time.perf_counter()
         _warm_grid()
@@ -345,11 +354,13 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             compare_s = time.perf_counter() - t_cmp
         finally:
             jobs.close()
+        rss["after_maps_and_compare"] = _peak_rss_mb()
         metrics = _metrics(log, det, info_counts=counts, duration=duration, p1=p1, results=results, grids=grids,
                            traj=traj, comparisons=comparisons, overlays=overlays, cfg=cfg, blueprint=blueprint,
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
+        metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": _peak_rss_mb(children=True)}
         metrics["timing"]["total_s"] = time.perf_counter() - t_start
         metrics["timing"]["cpu_s"] = time.process_time() - cpu_start
         metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]

@@ -311,6 +311,12 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                 ["map creation (SLAM solve + grids)", _f(t55["map_creation_s"], 2, " s")],
                 ["comparisons", _f(t.get("compare_s"), 2, " s")],
                 ["whole run", f"{_f(t.get('total_s'), 1)} s = {_f(t.get('realtime_factor'), 1)}× real time"]]
+        mem = m.get("memory")
+        if mem:
+            main = mem["peak_rss_mb_main"]
+            rows.append(["peak memory (resident)", f"main process {_f(main.get('after_read'), 0)} MB after reading, "
+                         f"{_f(main.get('after_maps_and_compare'), 0)} MB at the end; largest worker "
+                         f"{_f(mem.get('peak_rss_mb_workers'), 0)} MB"])
         B.append(("table", ["stage", "time"], rows))
     warns = m.get("warnings", [])
     if warns:
