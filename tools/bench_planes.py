@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
 from frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
 from tools.data import REPO, data_dir  # noqa: E402
+from tools.benchutil import pin_one_core  # noqa: E402
 
 EPSILONS = (0.005, 0.010, 0.020)
 TARGETS_MS = {"fspf+": 5.0, "fspf": 1.5}  # per 512×424 frame, thesis real-time config (issue 4)
@@ -79,14 +80,6 @@ def real_frames(n: int):
     every = max(1, 399 // max(1, n))
     return [(f"tum {s.name}", s.depth, s.camera, None) for s in iter_dataset(folder, n, every)]
 
-
-def _pin_one_core() -> str:
-    try:
-        cores = sorted(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cores[-1]})
-        return f"pinned to core {cores[-1]} of {len(cores)}"
-    except (AttributeError, OSError):
-        return "not pinned"
 
 
 def _stats(cpu_ms: list[float], wall_ms: list[float]) -> dict:
@@ -149,7 +142,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--repeats", type=int, default=5, help="runs per frame for the numba paths; the fastest counts")
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "bench")
     args = ap.parse_args(argv)
-    pin = _pin_one_core()
+    pin = pin_one_core()
     warmup()
     dcfg = DepthConfig()
     sims, sim_source = sim_frames(args.sim_frames)

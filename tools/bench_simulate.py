@@ -29,20 +29,13 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from tools.data import REPO  # noqa: E402
+from tools.benchutil import pin_one_core  # noqa: E402
 from tools.simulate import SimConfig, load_world, simulate  # noqa: E402
 from tools.simulate.log import trajectory  # noqa: E402
 from tools.simulate.render import (LaserModel, camera_mount, kinect_v2_model, laser_mount,  # noqa: E402
                                    render_depth_geometry, render_laser_geometry)
 from tools.simulate.sensors import DepthNoise, LaserNoise, apply_laser_noise, depth_noise_mm  # noqa: E402
 
-
-def _pin_one_core() -> str:
-    try:
-        cores = sorted(os.sched_getaffinity(0))
-        os.sched_setaffinity(0, {cores[-1]})
-        return f"pinned to core {cores[-1]} of {len(cores)}"
-    except (AttributeError, OSError):
-        return "not pinned"
 
 
 def _timed(fn):
@@ -84,7 +77,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "bench")
     args = ap.parse_args(argv)
-    pin = _pin_one_core()
+    pin = pin_one_core()
     world = load_world("office")
     cfg = SimConfig()
     traj = trajectory(world, cfg)
