@@ -200,3 +200,23 @@ def test_an_interrupted_run_writes_what_is_done_marked_partial(logs, tmp_path, w
     assert "PARTIAL RESULT" in (tmp_path / "report.md").read_text()
     assert json.loads((tmp_path / "metrics.json").read_text())["partial"] is True
     assert not list(tmp_path.glob("*.partial")) and not list(tmp_path.glob(".kosmap-spill-*"))
+
+
+@pytest.mark.slow
+def test_two_cameras_give_identical_steps_serial_and_parallel(tmp_path):
+    """The KOS stream of `kosmap scan` and `kosmap build`: front and rear camera merged per step, fused with the
+    nearest laser scan, the same whether the frames run here or in a pool (whose results arrive late)."""
+    from mapping.config import Config
+    from mapping.kosscan import ScanRun, kos_steps
+    from tools.simulate import SimConfig, load_world, simulate
+
+    log = tmp_path / "two.mcap"
+    simulate(load_world("room"), SimConfig(seed=6, duration=1.0, rear_camera=True), log)
+    serial = list(kos_steps(log, Config(), ScanRun(), workers=0))
+    pooled = list(kos_steps(log, Config(), ScanRun(), workers=2))
+    assert len(serial) == len(pooled) == 30 and all(len(s.frames) == 2 for s in serial)
+    for a, b in zip(serial, pooled):
+        assert a.stamp_ns == b.stamp_ns and set(a.scans) == set(b.scans)
+        for k in a.scans:
+            assert np.array_equal(a.scans[k].ranges, b.scans[k].ranges, equal_nan=True), k
+        assert (a.laser is None) == (b.laser is None) and (a.laser is None or a.laser.stamp_ns == b.laser.stamp_ns)
