@@ -21,7 +21,7 @@ from backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, s
 from backend.loops import LoopCloser, LoopConstraint
 from frontend import se2
 from frontend.errors import KosmapError, TopicError
-from frontend.odometry import OdometryConfig, WheelOdometry, make_odometry, scan_to_points
+from frontend.odometry import NARROW_SCAN, OdometryConfig, WheelOdometry, make_odometry, scan_to_points
 from frontend.records import Odometry, Scan, Transforms
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
@@ -179,20 +179,21 @@ def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) ->
 
 
 def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callable[[float, float], None] | None = None,
-             keep_scans: bool = False, max_seconds: float | None = None) -> SlamResult:
-    """Read a log in one pass and run SLAM on its laser scans with its wheel odometry.
+             keep_scans: bool = False, max_seconds: float | None = None, workers: int = 0) -> SlamResult:
+    """Read a log in one pass and run SLAM on its laser scans (`source="laser"`) or on the KOS scans of its
+    depth camera(s) (`source="kos"`: FSPF+ → KOS per frame in `workers` processes, 0 = here), with its
+    wheel odometry.
 
     `cfg` is a mapping.config.Config (defaults when None); `progress(done_s, total_s)` is called as log time
     advances; `keep_scans` keeps the Scan records (for the map); `max_seconds` stops after that much log
-    time (for slices). `source="kos"` (virtual scans from
-    the depth camera) is not available yet.
+    time (for slices).
     """
     from frontend.logs import detect_topics, open_log
     from mapping.config import Config
 
     cfg = cfg or Config()
     if source == "kos":
-        raise KosmapError("--source kos is not available yet: it needs the KOS stage (frontend/kos.py); use --source laser")
+        return _run_slam_kos(path, cfg, progress, keep_scans, max_seconds, workers)
     if source != "laser":
         raise KosmapError(f"unknown source '{source}'; use laser or kos")
     t_start = time.perf_counter()
@@ -283,6 +284,112 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
     return result
 
 
+def kos_odometry_config(cfg) -> OdometryConfig:
+    """The front end for a narrow KOS scan: [odometry] with frontend.odometry.NARROW_SCAN, then [build]
+    kos_odometry applied. NARROW_SCAN's stronger prior and no yaw search matter: on a 30 s simulated room log
+    (seed 0, 10 Hz depth) ATE 0.029 m with them vs 0.067 m with kos_odometry alone (odometry 0.053 m)."""
+    known = {f.name for f in dataclasses.fields(cfg.odometry)}
+    bad = [k for k in cfg.build.kos_odometry if k not in known]
+    if bad:
+        from frontend.errors import ConfigError
+
+        raise ConfigError(f"config [build] kos_odometry has unknown key(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
+    return dataclasses.replace(cfg.odometry, **{**NARROW_SCAN, **cfg.build.kos_odometry})
+
+
+def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | None, workers: int) -> SlamResult:
+    """SLAM on the KOS scan named by [build] slam_scan (obstacle by default) of every time step
+    (mapping/kosscan.py's KosStream), with the log's wheel odometry; the ground-truth topic is read for scoring."""
+    from frontend.logs import detect_topics, open_log
+    from frontend.odometry import scan_points_base
+    from mapping.framepool import FramePool
+    from mapping.kosscan import KosStream, ScanRun
+    from mapping.pipeline import SlamFeed
+
+    t_start = time.perf_counter()
+    bands = [b[0] for b in cfg.kos.bands()]
+    name = cfg.build.slam_scan
+    if name not in bands:
+        from frontend.errors import ConfigError
+
+        raise ConfigError(f"config [build] slam_scan = {name!r} is not a KOS scan of this config; choose one of {', '.join(bands)}")
+    ocfg = kos_odometry_config(cfg)
+    gcfg = dataclasses.replace(cfg.graph, **cfg.build.kos_graph)
+    slam = Slam(ocfg, gcfg)
+    kept: list[Scan] | None = [] if keep_scans else None
+    warnings: list[str] = []
+    gt_t: list[float] = []
+    gt_p: list[tuple[float, float, float]] = []
+    state = {"t0": None, "empty": 0, "stop": False}
+    with open_log(path) as log:
+        info = log.info()
+        det = detect_topics(info.types(), cfg.topics)
+        if not det.depth:
+            raise TopicError(f"{Path(path).name} has no depth image topic; --source kos needs one (see `kosmap info`; "
+                             f"name it with --depth-topic)")
+        use_odom = bool(det.odom) and ocfg.use_wheel_odometry
+        feed = SlamFeed(slam, use_odom)
+        run = ScanRun()
+        total = info.duration
+        min_period = int(1e9 / cfg.build.depth_rate) if cfg.build.depth_rate > 0 else 0
+
+        def on_step(step) -> None:
+            if state["t0"] is None:
+                state["t0"] = step.stamp_ns
+            if max_seconds is not None and (step.stamp_ns - state["t0"]) * 1e-9 > max_seconds:
+                state["stop"] = True
+                return
+            sc = step.scans[name]
+            pts = scan_points_base(sc.ranges, sc.angles, sc.valid(), None, ocfg.min_range, ocfg.max_range)
+            if len(pts) < ocfg.min_points:
+                state["empty"] += 1
+            feed.push(step.stamp_ns, pts)
+            if kept is not None:
+                kept.append(sc)
+            if progress is not None:
+                progress((step.stamp_ns - state["t0"]) * 1e-9, total)
+
+        topics = det.wanted()
+        with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
+            stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False)
+            now = None
+            for rec in log.read(topics):
+                if rec.stamp_ns and (now is None or rec.stamp_ns > now):
+                    now = rec.stamp_ns
+                if isinstance(rec, Odometry):
+                    if rec.topic == det.ground_truth:  # scoring only, never used by SLAM
+                        gt_t.append(rec.stamp)
+                        gt_p.append((rec.x, rec.y, rec.yaw))
+                        continue
+                    if rec.topic == det.odom:
+                        feed.odom(rec)
+                for step in stream.feed(rec):
+                    on_step(step)
+                feed.advance(now)
+                if state["stop"]:
+                    break
+            if not state["stop"]:
+                for step in stream.flush():
+                    on_step(step)
+        feed.advance(None)
+        warnings.extend(run.warnings)
+        warnings.extend(log.warnings)
+    result = slam.finish()
+    result.timings["total"] = time.perf_counter() - t_start
+    result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
+    result.mount = np.zeros(3)  # KOS scans are in base_link
+    result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
+    if state["empty"]:
+        warnings.append(f"{state['empty']} KOS scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
+    if feed.no_odom:
+        warnings.append(f"{feed.no_odom} KOS scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it")
+    result.warnings = warnings
+    result.scans = kept
+    if gt_t:
+        result.ground_truth = (np.array(gt_t), np.array(gt_p))
+    return result
+
+
 def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = None,
              ground_truth: str | Path | tuple[np.ndarray, np.ndarray] | None = None) -> dict:
     """Accuracy of a run: the relations metric (in the scan's frame, which the relations relate) and the
@@ -317,6 +424,9 @@ def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = Non
         out["ate"] = M.ate(result.stamps, result.poses, tg, pg)
         out["rpe"] = M.rpe(result.stamps, result.poses, tg, pg)
         out["ate_frontend"] = M.ate(result.stamps, result.local_poses, tg, pg)
+        has_odom = np.all(np.isfinite(result.odom_poses), axis=1) if len(result.odom_poses) else np.zeros(0, bool)
+        if has_odom.sum() >= 2:  # the baseline SLAM must beat: the log's wheel odometry at the same stamps
+            out["ate_odometry"] = M.ate(result.stamps[has_odom], result.odom_poses[has_odom], tg, pg)
         if len(meas):
             ref = M.Reference(np.asarray(tg, dtype=float), np.asarray(pg, dtype=float), np.zeros(len(tg), int))
             order = np.argsort(ref.t)

@@ -89,8 +89,13 @@ def test_log_file_end_to_end(log, tmp_path):
     assert paths["map_png"].stat().st_size > 1000 and paths["graph"].read_text().startswith("VERTEX_SE2 0")
 
 
-def test_kos_source_is_not_available_yet(tmp_path):
-    from frontend.errors import KosmapError
+def test_kos_source_needs_depth_frames(log, tmp_path):
+    from frontend.errors import TopicError
+    from frontend.logs.writer import McapWriter
 
-    with pytest.raises(KosmapError, match="not available yet"):
-        run_slam(tmp_path / "whatever.mcap", source="kos")
+    path = tmp_path / "laser_only.mcap"
+    with McapWriter(path) as w:
+        for rec in records(log):
+            w.write(rec)
+    with pytest.raises(TopicError, match="no depth image topic; --source kos needs one"):
+        run_slam(path, source="kos")

@@ -42,11 +42,11 @@ def test_slam_writes_every_output(ring_log, tmp_path, capsys):
     assert "ATE" in stdout
 
 
-def test_slam_kos_source_is_a_clear_error(ring_log, tmp_path, capsys):
+def test_slam_kos_source_without_depth_is_a_clear_error(ring_log, tmp_path, capsys):
     path, _ = ring_log
     code = main(["slam", str(path), "--source", "kos", "--out", str(tmp_path / "o")])
     err = capsys.readouterr().err
-    assert code == 2 and err.startswith("kosmap: error: ") and "not available yet" in err
+    assert code == 2 and err.startswith("kosmap: error: ") and "no depth image topic" in err
     assert len(err.strip().splitlines()) == 1
 
 

@@ -1,4 +1,5 @@
-"""`kosmap slam LOG --out DIR`: SLAM over a log's laser scans (KOS scans later), scored when a reference is given."""
+"""`kosmap slam LOG --out DIR`: SLAM over a log's laser scans or its depth camera's KOS scans, scored when a
+reference is given (or against the log's own ground-truth topic)."""
 
 from __future__ import annotations
 
@@ -16,18 +17,20 @@ def register(app: typer.Typer) -> None:
     def slam(
         log: Annotated[Path, typer.Argument(help="Log file: .mcap (ROS 2), .bag (ROS 1) or .clf (CARMEN).")],
         out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (trajectory, graph, map, metrics, config).")],
-        source: Annotated[str, typer.Option("--source", help="Scans to map from: laser, or kos (depth camera; not yet).")] = "laser",
+        source: Annotated[str, typer.Option("--source", help="Scans to map from: laser, or kos (the depth camera's KOS scan named by [build] slam_scan).")] = "laser",
         relations: Annotated[Optional[Path], typer.Option("--relations", help="Kümmerle .relations file to score against.")] = None,
         ground_truth: Annotated[Optional[Path], typer.Option("--ground-truth", help="TUM ground-truth trajectory to score against.")] = None,
         no_map: Annotated[bool, typer.Option("--no-map", help="Skip the occupancy grid (map.png, map.pgm/yaml).")] = False,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
+        workers: Annotated[int, typer.Option("--workers", help="--source kos: processes for FSPF+ and KOS (0 = serial, here).")] = 0,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
+        depth_topic: O.DepthTopicOpt = None,
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
         from mapping.slam import build_map, evaluate, run_slam, save_run
 
-        cfg = O.make_config(config, set_, scan_topic=scan_topic, odom_topic=odom_topic)
+        cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic)
         if relations is not None and not relations.is_file():
             from backend.metrics import MetricsError
 
@@ -44,9 +47,9 @@ def register(app: typer.Typer) -> None:
                 def tick(done: float, total: float) -> None:
                     prog.update(task, total=max(total, 1e-9), completed=done, t=done)
 
-                result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map)
+                result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
         else:
-            result = run_slam(log, cfg, source, keep_scans=not no_map)
+            result = run_slam(log, cfg, source, keep_scans=not no_map, workers=workers)
         metrics = evaluate(result, relations, ground_truth)
         grid = None if no_map else build_map(result, cfg.grid)
         paths = save_run(result, out, cfg, metrics, grid)
@@ -65,7 +68,8 @@ def register(app: typer.Typer) -> None:
                   f"(within {lp['trans_tol']} m and {lp['rot_tol_deg']}°)")
         if "ate" in metrics:
             a = metrics["ate"]
-            print(f"ATE: rmse {a['rmse']:.4f} m, max {a['max']:.4f} m ({a['n']} poses)")
+            print(f"ATE: rmse {a['rmse']:.4f} m, max {a['max']:.4f} m ({a['n']} poses)"
+                  + (f"; wheel odometry alone {metrics['ate_odometry']['rmse']:.4f} m" if "ate_odometry" in metrics else ""))
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)
         print(f"wrote {', '.join(p.name for p in paths.values())} to {out}")
