@@ -28,8 +28,8 @@ def test_build_prints_the_headline_and_writes_the_report(room, tmp_path, capsys)
                  "--set", "build.mcap_planes_period=0", "--set", "grid.resolution=0.1"])
     cap = capsys.readouterr()
     assert code == 0, cap.err
-    assert "F1 at 0.10 m  KOS obstacle (SLAM scan) vs blueprint" in cap.out
-    assert "F1 at 0.10 m  laser vs blueprint" in cap.out and "ATE RMSE      laser SLAM" in cap.out
+    assert "F1 at 0.10 m  KOS obstacle (SLAM scan) vs blueprint " in cap.out
+    assert "F1 at 0.10 m  laser vs blueprint " in cap.out and "ATE RMSE      laser SLAM " in cap.out
     assert "× real time" in cap.out and f"report: {out / 'report.html'}" in cap.out
     m = json.loads((out / "metrics.json").read_text())
     assert m["frames"]["processed"] == 45 and m["maps"]["laser"]["resolution"] == pytest.approx(0.1)

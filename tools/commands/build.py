@@ -21,10 +21,11 @@ def print_headline(metrics: dict, out: Path) -> None:
               f"of log; the outputs cover only that part")
     labels = {k: f"{metrics['maps'].get(c['a'], {}).get('label', c['a'])} vs {c['b'] if c['b'] == 'blueprint' else metrics['maps'].get(c['b'], {}).get('label', c['b'])}"
               for k, c in metrics["comparisons"].items()}
+    width = max([len(v) for v in labels.values()] + [10])
     for k, f1 in h["f1"].items():
-        print(f"  F1 at 0.10 m  {labels[k]:<45} {f1:.3f}")
+        print(f"  F1 at 0.10 m  {labels[k]:<{width}}  {f1:.3f}")
     for k, ate in h["ate"].items():
-        print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<45} {ate:.3f} m")
+        print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  {ate:.3f} m")
     t = metrics["timing"]
     print(f"  {t['total_s']:.1f} s for {t['log_s']:.1f} s of log: {t['realtime_factor']:.1f}× real time")
     for w in metrics.get("warnings", []):
