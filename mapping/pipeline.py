@@ -157,11 +157,34 @@ class _Series:
         if not self.fh.closed:
             self.fh.close()
 
-    def rows(self) -> np.ndarray:
+    def reader(self) -> _RowReader:
         self.close()
-        if not len(self) or self.width == 0:
-            return np.zeros((0, max(self.width, 1)), np.float32)
-        return np.memmap(self.path, np.float32, "r", shape=(len(self), self.width))
+        return _RowReader(self.path, max(self.width, 1))
+
+
+class _RowReader:
+    """Rows of a spill file, read forward in chunks: no memory map, whose touched pages would count as resident
+    memory growing with the log."""
+
+    def __init__(self, path: Path | str, width: int, chunk: int = 512) -> None:
+        self.fh = open(path, "rb")
+        self.width, self.chunk = int(width), chunk
+        self.lo = 0
+        self.buf = np.zeros((0, self.width), np.float32)
+
+    def get(self, i: int) -> np.ndarray:
+        if not self.lo <= i < self.lo + len(self.buf):
+            self.fh.seek(4 * i * self.width)
+            self.buf = np.fromfile(self.fh, np.float32, count=self.chunk * self.width).reshape(-1, self.width)
+            self.lo = i
+        return self.buf[i - self.lo]
+
+    def block(self, first: int, n: int) -> np.ndarray:
+        self.fh.seek(4 * first * self.width)
+        return np.fromfile(self.fh, np.float32, count=n * self.width).reshape(-1, self.width)
+
+    def close(self) -> None:
+        self.fh.close()
 
 
 class Spill:
@@ -647,16 +670,33 @@ def _scan_of(meta: dict, stamp: int, ranges: np.ndarray, topic: str = "") -> Sca
                 meta["range_min"], meta["range_max"], meta.get("frame_id", ""), topic)
 
 
-def _grid_job(gcfg, mount, path: str, shape: tuple, band: tuple | None, meta: dict, stamps: np.ndarray,
-              poses: np.ndarray) -> OccupancyGrid:
-    """One log-odds grid from spilled scans (rows of `path`; band k of B per row when `band` = (k, B))."""
-    rows = np.memmap(path, np.float32, "r", shape=shape)
-    if band is not None:
-        rows = rows.reshape(shape[0], band[1], -1)[:, band[0]]
+def _grid_job(gcfg, mount, path: str, width: int, band: tuple | None, meta: dict, stamps: np.ndarray,
+              poses: np.ndarray, idx: np.ndarray) -> OccupancyGrid:
+    """One log-odds grid from the spilled scans `idx` (rows of `path`; band k of B per row when `band` = (k, B))."""
+    rows = _RowReader(path, width)
     b = GridBuilder(gcfg, mount)
-    for s in range(len(stamps)):
-        b.add(poses[s], _scan_of(meta, stamps[s], rows[s]))
+    try:
+        for s in idx:
+            r = rows.get(int(s))
+            if band is not None:
+                n = width // band[1]
+                r = r[band[0] * n:(band[0] + 1) * n]
+            b.add(poses[s], _scan_of(meta, stamps[s], r))
+    finally:
+        rows.close()
     return b.to_occupancy()
+
+
+def _every(stamps: np.ndarray, rate: float) -> np.ndarray:
+    """Indices of the stamps kept at most `rate` per second (all when rate is 0)."""
+    if rate <= 0 or not len(stamps):
+        return np.arange(len(stamps))
+    period, keep, last = int(1e9 / rate) - 1_000_000, [], None
+    for i, t in enumerate(stamps):
+        if last is None or t - last >= period:
+            keep.append(i)
+            last = t
+    return np.asarray(keep, np.int64)
 
 
 def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files: dict, bands: list[str],
@@ -683,31 +723,32 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
         return se2.interpolate(r.stamps_ns.astype(np.float64), r.poses, stamps.astype(np.float64))
 
     specs: list[tuple[str, dict, tuple]] = []  # (name, info, job args)
+    kos_idx = _every(kos_stamps, bcfg.kos_map_rate)
     if len(kos_stamps) and "kos" in results:
         poses = poses_at("kos", kos_stamps)
         for k, b in enumerate(bands):
-            specs.append((f"kos_{b}", {"source": "kos", "level": b, "poses": "kos",
+            specs.append((f"kos_{b}", {"source": "kos", "level": b, "poses": "kos", "scans": len(kos_idx),
                                        "label": f"KOS {b}" + (" (SLAM scan)" if b == bcfg.slam_scan else "")},
-                          ((0.0, 0.0, 0.0), spill.kos, (k, len(bands)), kos_meta, kos_stamps, poses)))
+                          ((0.0, 0.0, 0.0), spill.kos, (k, len(bands)), kos_meta, kos_stamps, poses, kos_idx)))
     if len(kos_stamps) and "laser" in results and bcfg.kos_on_laser_poses:
         specs.append(("kos_obstacle_at_laser_poses", {"source": "kos", "level": OBSTACLE, "poses": "laser",
-                                                      "label": "KOS obstacle at the laser's poses"},
+                                                      "scans": len(kos_idx), "label": "KOS obstacle at the laser's poses"},
                       ((0.0, 0.0, 0.0), spill.kos, (bands.index(OBSTACLE), len(bands)), kos_meta, kos_stamps,
-                       poses_at("laser", kos_stamps))))
+                       poses_at("laser", kos_stamps), kos_idx)))
     if "laser" in results and len(spill.laser):
         st = np.asarray(spill.laser.stamps, np.int64)
-        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "label": "laser"},
-                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st))))
+        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "scans": len(st), "label": "laser"},
+                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st), np.arange(len(st)))))
     if "laser" in results and len(spill.fused):
         st = np.asarray(spill.fused.stamps, np.int64)
-        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser",
+        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser", "scans": len(st),
                                 "label": "KOS obstacle fused with the laser"},
-                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st))))
+                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st), np.arange(len(st)))))
     futures = []
-    for name, info, (mount, series, band, meta, st, poses) in specs:
+    for name, info, (mount, series, band, meta, st, poses, idx) in specs:
         series.close()
-        futures.append(jobs.submit(_grid_job, cfg.grid, mount, str(series.path), (len(series), series.width), band,
-                                   meta, st, poses))
+        futures.append(jobs.submit(_grid_job, cfg.grid, mount, str(series.path), series.width, band, meta, st, poses,
+                                   idx))
 
     for name, tr in traj.items():
         files[f"trajectory_{name}"] = write_tum(out / f"trajectory_{name}.tum", tr["stamps_ns"] * 1e-9, tr["poses"])
@@ -751,25 +792,24 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
     events += [(int(s), 3, i) for i, (s, _, _) in enumerate(spill.cloud_index)]
     events += [(int(s), 4, i) for i, s in enumerate(pres.stamps_ns)]
     events.sort()
-    kos_rows = spill.kos.rows().reshape(len(spill.kos), len(bands), -1) if len(spill.kos) else None
-    laser_rows = spill.laser.rows() if len(spill.laser) else None
-    fused_rows = spill.fused.rows() if len(spill.fused) else None
-    plane_rows = spill.planes.rows() if len(spill.planes) else None
+    kos_rows, laser_rows, fused_rows, plane_rows = (spill.kos.reader(), spill.laser.reader(), spill.fused.reader(),
+                                                    spill.planes.reader())
     t_end = int(max([e[0] for e in events] or [0]))
     with McapWriter(path) as w:
         for rec in p1["statics"]:
             w.write(rec, "/tf_static")
         for stamp, kind, i in events:
             if kind == 0:
+                r = kos_rows.get(i).reshape(len(bands), -1)
                 for k, b in enumerate(bands):
-                    w.write(_scan_of(kos_meta, stamp, kos_rows[i, k]), KOS_PREFIX + b)
+                    w.write(_scan_of(kos_meta, stamp, r[k]), KOS_PREFIX + b)
             elif kind == 1:
-                w.write(_scan_of(spill.laser.meta, stamp, laser_rows[i]), spill.laser.meta.get("topic") or "/scan")
+                w.write(_scan_of(spill.laser.meta, stamp, laser_rows.get(i)), spill.laser.meta.get("topic") or "/scan")
             elif kind == 2:
-                w.write(_scan_of(spill.fused.meta, stamp, fused_rows[i]), KOS_PREFIX + FUSED)
+                w.write(_scan_of(spill.fused.meta, stamp, fused_rows.get(i)), KOS_PREFIX + FUSED)
             elif kind == 3:
                 _, first, n = spill.cloud_index[i]
-                rows = np.asarray(plane_rows[first:first + n])
+                rows = plane_rows.block(first, n)
                 w.write_pointcloud(PLANES_TOPIC, stamp, "base_link", rows[:, :3], {"class": rows[:, 3]})
             else:
                 x, y, yaw = pres.poses[i]
@@ -785,6 +825,8 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
         for name, gi in grids_when_done().items():
             gr: OccupancyGrid = gi["grid"]
             w.write_grid(f"/kosmap/map/{name}", t_end, "map", gr.data, gr.resolution, gr.origin)
+    for r in (kos_rows, laser_rows, fused_rows, plane_rows):
+        r.close()
     return path
 
 
