@@ -27,6 +27,7 @@ import numpy as np  # noqa: E402
 from frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
 from frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
 from frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view  # noqa: E402
+from tools.benchutil import pin_one_core  # noqa: E402
 from tools.data import REPO  # noqa: E402
 
 TARGET_3_LEVELS_MS, TARGET_PER_LEVEL_MS = 1.0, 0.1  # issue 5
@@ -87,6 +88,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20)
     args = ap.parse_args()
+    pin = pin_one_core()
     warmup()
     data = frames(args.frames)
     dcfg = DepthConfig()
@@ -114,10 +116,12 @@ def main() -> None:
 
     res = {k: stat(k) for k in rows}
     res["per_added_level_ms"] = (res["kos3_planes"]["median"] - res["kos1_planes"]["median"]) / 2
-    res["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(), "frames": len(data)}
+    res["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
+                      "frames": len(data), "pinning": pin, "load_average": os.getloadavg()}
     base = res["d2l"]["median"]
     lines = ["# KOS benchmark", "",
-             f"{len(data)} simulated Kinect v2 frames (office world, 512×424, noisy); CPU ms per frame, best of 5 runs "
+             f"{len(data)} simulated Kinect v2 frames (office world, 512×424, noisy), {pin}, load average "
+             f"{os.getloadavg()[0]:.1f} (a shared machine); CPU ms per frame, best of 5 runs "
              f"per frame, median and p90 over frames. Targets (issue 5): 3 levels ≤ {TARGET_3_LEVELS_MS} ms, "
              f"each added level ≤ {TARGET_PER_LEVEL_MS} ms.", "",
              "| method | input points (median) | median ms | p90 ms | × depthimage_to_laserscan |", "|---|---:|---:|---:|---:|"]
