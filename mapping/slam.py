@@ -119,6 +119,8 @@ class Slam:
             if kf.cov is not None and prev.cov is not None:
                 # honest: both ends' match covariances (large along what the scans cannot see) + the fixed part
                 cov = relative_covariance(prev.local_pose, prev.cov, kf.local_pose, kf.cov) + np.diag(g.match_sigmas(rel) ** 2)
+                if not (self.gcfg.odometry_factors and kf.odom_pose is not None and prev.odom_pose is not None):
+                    cov = _cap_covariance(cov)  # nothing else ties the nodes: a blind direction must not be singular
                 g.add_match(prev.id, kf.id, rel, cov=cov)
             else:
                 g.add_match(prev.id, kf.id, rel)
@@ -161,6 +163,18 @@ class Slam:
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
                           loop_stats=dataclasses.asdict(self.loops.stats))
+
+
+MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
+
+
+def _cap_covariance(cov: np.ndarray) -> np.ndarray:
+    """`cov` with its eigenvalues clipped to MAX_MATCH_VAR (and to be positive): a narrow scan along a
+    corridor has a near-infinite variance along it, which, with no odometry factor beside it, makes the
+    graph indeterminate (gtsam IndeterminateSystemException on the simulated office without wheel odometry)."""
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.clip(np.nan_to_num(w, nan=MAX_MATCH_VAR, posinf=MAX_MATCH_VAR), 1e-12, MAX_MATCH_VAR)
+    return (v * w) @ v.T
 
 
 def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) -> np.ndarray | None:
