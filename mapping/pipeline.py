@@ -423,7 +423,6 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     out = spill_dir.parent
     spill = Spill(spill_dir)
     bands = [b[0] for b in cfg.kos.bands()]
-    slam_band = bands.index(bcfg.slam_scan) if det.depth else -1
     use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
     kos_feed = SlamFeed(kos_slam, use_odom) if kos_slam is not None else None
     laser_feed = SlamFeed(laser_slam, use_odom) if laser_slam is not None else None
@@ -432,7 +431,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     gt = array("d")  # t, x, y, yaw flattened
     stats = {k: array("f") for k in TABLE_5_2}
     state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "laser_mount": None,
-             "laser_meta": None, "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
+             "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
              "stop": False, "partial": False}
     laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
     if det.scan and duration > 0 and counts.get(det.scan, 0) / duration <= 1.2 * bcfg.laser_rate:
@@ -623,7 +622,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
             "log_s": (t - t0) * 1e-9 if t0 is not None and t is not None else 0.0, "t0_ns": t0,
             "kos_slam": kos_slam, "laser_slam": laser_slam, "laser_mount": state["laser_mount"],
             "gt": g, "stats": {k: np.asarray(v) for k, v in stats.items()}, "run": run, "statics": statics,
-            "slam_band": slam_band, "total": total}
+            "total": total}
 
 
 # ---- pass 2: grids from the optimised poses, the MCAP ------------------------------------------------------------
