@@ -28,14 +28,17 @@ CACHE = REPO / ".kosmap-cache" / "demo"
 
 WARM_UP = """
 import pathlib, shutil, sys, tempfile
+import numpy as np
 from mapping.config import Config
 from mapping.mapio import write_map_server
 from mapping.pipeline import build
 from tools.simulate import SimConfig, load_world, simulate
+from tools.simulate.world import PathSpec
 d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-"))
 try:
     w = load_world("room")
-    simulate(w, SimConfig(duration=2.0, depth_rate=5.0, laser_rate=10.0), d / "room.mcap")
+    laps = PathSpec(np.vstack([w.path.waypoints[:5]] * 4))  # four laps: enough keyframes for a loop search
+    simulate(w, SimConfig(depth_rate=1.0, laser_rate=5.0, speed_min=0.6, speed_max=0.6), d / "room.mcap", laps)
     bp = write_map_server(w.blueprint(0.05), d / "bp.yaml", ".png")
     build(d / "room.mcap", d / "out", Config(), blueprint=bp, workers=0)
 finally:
@@ -44,8 +47,9 @@ finally:
 
 
 def warm_up():
-    """A tiny build of the room in another process, so that numba compiles (and caches) every kernel of the
-    pipeline while this process simulates the office: on a fresh machine compiling costs about a minute of CPU."""
+    """A small build of the room (four laps, so that loops are searched) in another process, so that numba
+    compiles (and caches) every kernel of the pipeline while this process simulates the office: on a fresh
+    machine compiling costs over a minute of CPU."""
     import subprocess
 
     return subprocess.Popen([sys.executable, "-c", WARM_UP], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
