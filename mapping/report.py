@@ -228,6 +228,14 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          _f(v["coverage"]), _f(v["recall_observed"])])
         B.append(("table", ["map A vs reference B, at 0.10 m", "F1", "precision", "recall", "coverage",
                             "recall of observed"], rows))
+        low = [(m["comparisons"][k], m["comparisons"][k]["tolerances"][TOL]["coverage"]) for k in h["f1"]
+               if m["comparisons"][k]["b"] == "blueprint"]
+        low = [(c, cov) for c, cov in low if cov is not None and cov < 0.95]
+        if low:
+            seen = ", ".join(f"{_label(c['a'], m)} {100 * cov:.0f} %" for c, cov in low)
+            B.append(("p", f"Coverage bounds recall: on this path the maps saw only part of the blueprint's walls "
+                           f"({seen}); walls never in view count as missed, so recall and F1 cannot exceed what was "
+                           f"seen. 'Recall of observed' is the recall over the walls a map did see."))
     rows = [[f"{'KOS' if k == 'kos' else 'laser'} SLAM", _f(v, 3, " m"),
              _f(m["slam"][k].get("ate_odometry", {}).get("rmse"), 3, " m")] for k, v in h["ate"].items()]
     if rows:
