@@ -19,7 +19,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
-import math
 import os
 import shutil
 import signal
@@ -47,6 +46,7 @@ from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
 from mapping.framepool import FramePool, default_workers
 from mapping.grid import GridBuilder, OccupancyGrid
+from mapping.jsonsafe import json_safe
 from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
@@ -241,23 +241,6 @@ def _stats(v) -> dict:
             "p90": float(np.percentile(a, 90))}
 
 
-def _clean(o):
-    """JSON-safe: NaN/inf → None, numpy → Python, Paths → str."""
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, (np.floating, float)):
-        return float(o) if math.isfinite(o) else None
-    if isinstance(o, (np.integer,)):
-        return int(o)
-    if isinstance(o, (np.bool_,)):
-        return bool(o)
-    if isinstance(o, Path):
-        return str(o)
-    return o
 
 
 def _write_text(path: Path, text: str) -> Path:
@@ -388,7 +371,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         metrics["timing"]["cpu_s"] = time.process_time() - cpu_start
         metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
                                                 if metrics["timing"]["total_s"] > 0 else None)
-        files["metrics"] = _write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+        files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
         if report:
             from mapping.report import write_report
 
@@ -398,8 +381,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             metrics["timing"]["total_s"] = time.perf_counter() - t_start
             metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
                                                     if metrics["timing"]["total_s"] > 0 else None)
-            files["metrics"] = _write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
-        return BuildResult(out, _clean(metrics), files)
+            files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
+        return BuildResult(out, json_safe(metrics), files)
     finally:
         shutil.rmtree(spill_dir, ignore_errors=True)
 

@@ -23,6 +23,7 @@ from frontend import se2
 from frontend.errors import KosmapError, TopicError
 from frontend.odometry import NARROW_SCAN, OdometryConfig, WheelOdometry, make_odometry, scan_to_points
 from frontend.records import Odometry, Scan, Transforms
+from mapping.jsonsafe import json_safe
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
 ODOM_STALE_S = 0.5  # scans farther than this outside the odometry's span get no odometry prior
@@ -469,19 +470,6 @@ def build_map(result: SlamResult, grid_cfg=None):
     return b.to_occupancy()
 
 
-def _clean(o):
-    """JSON-safe: NaN/inf → None, numpy → Python."""
-    if isinstance(o, dict):
-        return {str(k): _clean(v) for k, v in o.items()}
-    if isinstance(o, (list, tuple)):
-        return [_clean(v) for v in o]
-    if isinstance(o, np.ndarray):
-        return _clean(o.tolist())
-    if isinstance(o, (np.floating, float)):
-        return float(o) if np.isfinite(o) else None
-    if isinstance(o, np.integer):
-        return int(o)
-    return o
 
 
 def summary(result: SlamResult) -> dict:
@@ -512,7 +500,7 @@ def save_run(result: SlamResult, out: str | Path, cfg=None, metrics: dict | None
              "graph": result.graph.write_g2o(d / "graph.g2o")}
     doc = {"run": summary(result), **(metrics or {})}
     tmp = d / "metrics.json.partial"
-    tmp.write_text(json.dumps(_clean(doc), indent=2))
+    tmp.write_text(json.dumps(json_safe(doc), indent=2))
     os.replace(tmp, d / "metrics.json")
     paths["metrics"] = d / "metrics.json"
     if grid is not None:
