@@ -317,7 +317,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     if has_depth and bcfg.slam_scan not in bands:
         raise ConfigError(f"config [build] slam_scan = {bcfg.slam_scan!r} is not a KOS scan of this config; "
                           f"choose one of {', '.join(bands)}")
-    kos_ocfg: OdometryConfig = _merged(cfg.odometry, bcfg.kos_odometry, "kos_odometry")
+    from mapping.slam import kos_odometry_config
+
+    kos_ocfg: OdometryConfig = kos_odometry_config(cfg)  # the same front end as `kosmap slam --source kos`
     kos_gcfg = _merged(cfg.graph, bcfg.kos_graph, "kos_graph")
 
     out.mkdir(parents=True, exist_ok=True)
