@@ -13,7 +13,8 @@ from frontend.params import StageConfig, param
 # the direction of travel and no unconstrained correlative search (STACK.md, "The narrow depth camera in a
 # corridor loop": 17.5 m → 1.4 m ATE), and no wide recovery search (±1 m, ±90°), which locks a narrow scan onto
 # the wrong wall: on the simulated office (10835 KOS steps) ATE 7.5 m with it, 0.46 m without (wheel odometry
-# alone: 0.26 m). Values of [odometry] that differ for the KOS scans; the SLAM work on KOS accuracy tunes these.
+# alone: 0.26 m). Values of [odometry] that differ for the KOS scans, applied over mapping.slam.KOS_FRONTEND
+# (kos_odometry_config), whose owner tunes KOS accuracy; `kosmap build` and `kosmap slam --source kos` share both.
 KOS_ODOMETRY = {"prior_weight_along": 1000.0, "search_linear": 0.0, "recovery_ratio": 0.0}
 
 
