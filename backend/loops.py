@@ -122,7 +122,6 @@ class LoopCloser:
         import time
 
         t0 = time.perf_counter()
-        c = self.cfg
         pts = self.points.get(node)
         found: list[LoopConstraint] = []
         if pts is None or len(pts) < 10:

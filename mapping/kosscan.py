@@ -20,7 +20,7 @@ import numpy as np
 from frontend.camera import lookup_static
 from frontend.depthstream import DepthItem, DepthResolver
 from frontend.errors import TopicError
-from frontend.kos import FUSED, OBSTACLE, Bearings, KosConfig, bearings_for, camera_view, fuse_with_laser, in_view
+from frontend.kos import FUSED, OBSTACLE, Bearings, bearings_for, camera_view, fuse_with_laser, in_view
 from frontend.kosframe import KosFrame, merge_cameras
 from frontend.logs import detect_topics, open_log
 from frontend.records import DepthFrame, Scan, Transform, Transforms

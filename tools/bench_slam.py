@@ -122,8 +122,8 @@ def markdown(res: dict, meta: dict) -> str:
          "(population) over all relations of the log, in the scan's frame (base_link ⊕ the laser mount from "
          "`/tf_static`). Published numbers: Hess et al. 2016 Table II (Cartographer; Graph Mapping (GM) from "
          "Kümmerle et al. 2009), Table V (Cartographer wall clock, Xeon E5-1650 3.2 GHz).", "",
-         f"**One parameter set for all logs**: the defaults of `[odometry]` and `[graph]` (listed at the end); "
-         f"no per-log tuning.", ""]
+         "**One parameter set for all logs**: the defaults of `[odometry]` and `[graph]` (listed at the end); "
+         "no per-log tuning.", ""]
     if meta.get("seconds"):
         L += [f"**Slices**: only the first {meta['seconds']} s of each log (not comparable with the published numbers).", ""]
     for name, r in res.items():

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frontend.errors import ConfigError, KosmapError
+from frontend.errors import ConfigError
 from frontend.logs import detect_topics, open_log
 from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transforms
 from tools.cli import main

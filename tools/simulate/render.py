@@ -21,7 +21,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from frontend.camera import OPTICAL_ROTATION, mount_transform
+from frontend.camera import mount_transform
 from frontend.records import CameraModel, Transform
 from tools.simulate.world import World
 
