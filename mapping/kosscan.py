@@ -26,6 +26,7 @@ from frontend.logs import detect_topics, open_log
 from frontend.records import DepthFrame, Scan, Transform, Transforms
 from mapping.config import Config, write_config
 from mapping.framepool import FramePool
+from mapping.mapio import save_figure
 
 KOS_PREFIX = "/kinect_scan/"
 
@@ -247,10 +248,7 @@ def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: li
     ax.legend(loc="upper right", fontsize=7, markerscale=3)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    tmp = path.with_name(path.name + ".partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    tmp.replace(path)
+    save_figure(fig, path)
 
 
 def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,

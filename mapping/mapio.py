@@ -224,6 +224,19 @@ def write_grid_mcap(grid: OccupancyGrid, path: str | Path, topic: str = "/map", 
     return Path(path)
 
 
+def save_figure(fig, path: str | Path) -> Path:
+    """Save a matplotlib figure atomically (a `.partial.png` renamed when complete) and close it."""
+    p = Path(path)
+    p.parent.mkdir(parents=True, exist_ok=True)
+    tmp = p.with_name(p.stem + ".partial.png")
+    fig.savefig(tmp)
+    import matplotlib.pyplot as plt
+
+    plt.close(fig)
+    os.replace(tmp, p)
+    return p
+
+
 def write_png(image_bgr: np.ndarray, path: str | Path) -> Path:
     """Write a picture atomically."""
     p = Path(path)

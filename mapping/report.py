@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from mapping.mapio import save_figure
+
 TOL = "0.10"  # the tolerance of the headline numbers (the acceptance)
 
 
@@ -99,12 +101,7 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
     ax.legend(loc="best", fontsize=8)
     ax.grid(alpha=0.3)
     fig.tight_layout()
-    path = out / "trajectories.png"
-    tmp = path.with_name("trajectories.partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, out / "trajectories.png")
 
 
 def summary_figure(out: Path, metrics: dict, path: Path | None = None) -> Path | None:
@@ -135,12 +132,7 @@ def summary_figure(out: Path, metrics: dict, path: Path | None = None) -> Path |
             bits.append(f"{'KOS' if src == 'kos' else 'laser'} SLAM ATE {ate['rmse']:.2f} m")
         ax.set_title(" · ".join(bits), fontsize=10)
     fig.tight_layout()
-    path = path or out / "summary.png"
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, path or out / "summary.png")
 
 
 def frames_figure(out: Path) -> Path | None:
@@ -172,12 +164,7 @@ def frames_figure(out: Path) -> Path | None:
     a2.legend(fontsize=7, loc="upper right")
     a2.grid(alpha=0.3)
     fig.tight_layout()
-    path = out / "frames.png"
-    tmp = path.with_name("frames.partial.png")
-    fig.savefig(tmp)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_figure(fig, out / "frames.png")
 
 
 # ---- the content, once, for both formats ----------------------------------------------------------------------------
