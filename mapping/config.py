@@ -72,7 +72,7 @@ def load_config(path: str | Path | None = None, overrides: list[str] | dict[str,
         p = Path(path)
         where = str(p)
         if not p.is_file():
-            raise ConfigError(f"config file {p} does not exist; write one with `kosmap config` or drop --config")
+            raise ConfigError(f"config file {p} does not exist; give an existing TOML file (a section per stage) or drop --config")
         try:
             data = tomllib.loads(p.read_text())
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:

@@ -51,11 +51,9 @@ def score(planes: Planes, sid: np.ndarray, truth: dict[int, tuple[str, np.ndarra
         errs[k] = np.degrees(np.arccos(min(1.0, abs(float(planes.normals[k] @ n_true)))))
     good = np.zeros(len(planes.points), bool)
     z = planes.points[:, 2].astype(float)
-    for k in range(len(planes)):
-        if majority[k] == 0:
-            continue
-        sel = planes.plane == k
-        p = cam_planes[majority[k]]
+
+    def within_3_sigma(sel: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Whether the selected points' depths lie within 3σ of where their pixels' rays meet plane p."""
         rr = ray[r[sel], c[sel]]
         z_hit = -p[3] / (rr @ p[:3])
         if with_incidence:
@@ -63,22 +61,20 @@ def score(planes: Planes, sid: np.ndarray, truth: dict[int, tuple[str, np.ndarra
             s = sigma(z_hit, cos_inc)
         else:
             s = sigma(z_hit)
-        good[sel] = np.abs(z[sel] - z_hit) <= 3 * s
+        return np.abs(z[sel] - z_hit) <= 3 * s
+
+    for k in range(len(planes)):
+        if majority[k] == 0:
+            continue
+        sel = planes.plane == k
+        good[sel] = within_3_sigma(sel, cam_planes[majority[k]])
     # literal: each point's own pixel shows a planar surface and the point is within 3σ of it
     own = np.zeros(len(z), bool)
     for k in np.unique(psid):
         if k not in cam_planes:
             continue
         sel = psid == k
-        p = cam_planes[k]
-        rr = ray[r[sel], c[sel]]
-        z_hit = -p[3] / (rr @ p[:3])
-        if with_incidence:
-            cos_inc = np.abs(rr @ p[:3]) / (np.linalg.norm(rr, axis=1) * np.linalg.norm(p[:3]))
-            s = sigma(z_hit, cos_inc)
-        else:
-            s = sigma(z_hit)
-        own[sel] = np.abs(z[sel] - z_hit) <= 3 * s
+        own[sel] = within_3_sigma(sel, cam_planes[k])
     out["on_own_surface"] = float(own.mean())
     pclass = planes.classes[planes.plane]
     maj_cls = np.array([truth[m][0] if m in truth else "" for m in majority])[planes.plane]
