@@ -207,6 +207,70 @@ class Odometry:
         return self.stamp_ns * 1e-9
 
 
+def _cov9(v) -> np.ndarray:
+    return np.asarray(v, dtype=np.float64).reshape(9)
+
+
+@dataclass(frozen=True)
+class Imu:
+    """One sensor_msgs/Imu sample in `frame_id` (body rates rad/s, specific force m/s², orientation x, y, z, w).
+
+    Covariances are row-major 3×3 as in the message: element 0 = −1 means that quantity is not provided
+    (a raw MEMS stream has no orientation); all zeros means "covariance unknown" (the message spec).
+    """
+
+    stamp_ns: int
+    angular_velocity: np.ndarray  # (3,) rad/s
+    linear_acceleration: np.ndarray  # (3,) m/s², gravity included (a resting IMU reads +9.81 on z)
+    orientation: np.ndarray = field(default_factory=lambda: np.array([0.0, 0.0, 0.0, 1.0]))  # (4,) x, y, z, w
+    orientation_cov: np.ndarray = field(default_factory=lambda: np.array([-1.0] + [0.0] * 8))  # (9,)
+    angular_velocity_cov: np.ndarray = field(default_factory=lambda: np.zeros(9))  # (9,)
+    linear_acceleration_cov: np.ndarray = field(default_factory=lambda: np.zeros(9))  # (9,)
+    frame_id: str = ""
+    topic: str = ""
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "angular_velocity", np.asarray(self.angular_velocity, dtype=np.float64).reshape(3))
+        set_(self, "linear_acceleration", np.asarray(self.linear_acceleration, dtype=np.float64).reshape(3))
+        set_(self, "orientation", np.asarray(self.orientation, dtype=np.float64).reshape(4))
+        for name in ("orientation_cov", "angular_velocity_cov", "linear_acceleration_cov"):
+            set_(self, name, _cov9(getattr(self, name)))
+
+    @property
+    def stamp(self) -> float:
+        return self.stamp_ns * 1e-9
+
+    @property
+    def has_orientation(self) -> bool:
+        """False when orientation_covariance[0] is −1 (orientation not provided, sensor_msgs/Imu)."""
+        return bool(self.orientation_cov[0] != -1.0)
+
+    @property
+    def has_angular_velocity(self) -> bool:
+        return bool(self.angular_velocity_cov[0] != -1.0)
+
+    @property
+    def has_linear_acceleration(self) -> bool:
+        return bool(self.linear_acceleration_cov[0] != -1.0)
+
+    @property
+    def has_angular_velocity_cov(self) -> bool:
+        """True when the gyro's covariance is given: not −1 (not provided) and not all zeros (unknown)."""
+        c = self.angular_velocity_cov
+        return bool(c[0] != -1.0 and np.any(c != 0.0))
+
+    @property
+    def has_linear_acceleration_cov(self) -> bool:
+        c = self.linear_acceleration_cov
+        return bool(c[0] != -1.0 and np.any(c != 0.0))
+
+    @property
+    def yaw_rate(self) -> float:
+        """Rate about the frame's z axis (rad/s); for an IMU mounted level on base_link, the robot's yaw rate."""
+        return float(self.angular_velocity[2])
+
+
 @dataclass(frozen=True)
 class Transforms:
     """One tf2_msgs/TFMessage: transforms from /tf (moving) or /tf_static (mounts)."""
@@ -221,7 +285,7 @@ class Transforms:
         return self.stamp_ns * 1e-9
 
 
-Record = DepthFrame | CameraModel | Scan | Odometry | Transforms
+Record = DepthFrame | CameraModel | Scan | Odometry | Transforms | Imu
 
 
 def yaw_to_quat(yaw: float) -> np.ndarray:

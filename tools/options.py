@@ -15,10 +15,12 @@ DepthTopicOpt = Annotated[Optional[list[str]], typer.Option("--depth-topic", hel
 InfoTopicOpt = Annotated[Optional[list[str]], typer.Option("--info-topic", help="Camera info topic, one per depth topic.")]
 ScanTopicOpt = Annotated[Optional[str], typer.Option("--scan-topic", help="Laser scan topic.")]
 OdomTopicOpt = Annotated[Optional[str], typer.Option("--odom-topic", help="Wheel odometry topic.")]
+ImuTopicOpt = Annotated[Optional[str], typer.Option("--imu-topic", help="IMU topic (sensor_msgs/Imu); 'none' ignores the log's IMU.")]
 
 
 def make_config(config: Path | None, sets: list[str] | None, depth_topic: list[str] | None = None,
-                info_topic: list[str] | None = None, scan_topic: str | None = None, odom_topic: str | None = None) -> Config:
+                info_topic: list[str] | None = None, scan_topic: str | None = None, odom_topic: str | None = None,
+                imu_topic: str | None = None) -> Config:
     """File ← --set ← topic flags (the most specific wins)."""
     overrides: dict = {}
     for s in sets or []:
@@ -32,4 +34,6 @@ def make_config(config: Path | None, sets: list[str] | None, depth_topic: list[s
         overrides["topics.scan"] = scan_topic
     if odom_topic:
         overrides["topics.odom"] = odom_topic
+    if imu_topic:
+        overrides["topics.imu"] = imu_topic
     return load_config(config, overrides)

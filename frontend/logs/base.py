@@ -8,7 +8,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from frontend.records import Record
+from frontend.records import Imu, Record
 
 
 @dataclass
@@ -64,6 +64,21 @@ class LogReader(ABC):
 
         Messages of types kosmap does not use are skipped. Memory stays flat in the log's length.
         """
+
+    def _usable(self, rec):
+        """The record, or None (with one warning per topic) for an IMU sample with non-finite values."""
+        if isinstance(rec, Imu):
+            from frontend.logs.convert import imu_problem
+
+            why = imu_problem(rec)
+            if why is not None:
+                bad = self.__dict__.setdefault("_bad_imu", {})
+                if rec.topic not in bad:
+                    self._warn(f"IMU on {rec.topic} has {why} (first at t={rec.stamp:.3f} s); such samples are "
+                               f"skipped: check the IMU driver, or pass --imu-topic none to map without it")
+                bad[rec.topic] = bad.get(rec.topic, 0) + 1
+                return None
+        return rec
 
     def _warn(self, text: str) -> None:
         if text not in self.warnings:

@@ -13,7 +13,8 @@ from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from frontend.errors import LogError
 from frontend.logs import topics as T
-from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transform, Transforms, quat_to_yaw, yaw_to_quat
+from frontend.records import (CameraModel, DepthFrame, Imu, Odometry, Scan, Transform, Transforms, quat_to_yaw,
+                              yaw_to_quat)
 
 _TF_MSGDEF = "geometry_msgs/TransformStamped[] transforms"
 
@@ -87,6 +88,27 @@ def to_record(msg, msgtype: str, topic: str):
                                         m.transform.rotation.w]), stamp_ns(m.header.stamp)) for m in msg.transforms)
         t = max((tf.stamp_ns for tf in tfs), default=0)
         return Transforms(t, tfs, topic == "/tf_static" or "static" in topic, topic)
+    if msgtype == T.IMU:
+        return imu_record(msg, topic)
+    return None
+
+
+def imu_record(msg, topic: str) -> Imu:
+    """sensor_msgs/Imu → Imu, values as they came (the readers drop unusable samples: `imu_problem`)."""
+    w, a, q = msg.angular_velocity, msg.linear_acceleration, msg.orientation
+    return Imu(stamp_ns(msg.header.stamp), np.array([w.x, w.y, w.z], dtype=np.float64),
+               np.array([a.x, a.y, a.z], dtype=np.float64), np.array([q.x, q.y, q.z, q.w], dtype=np.float64),
+               np.asarray(msg.orientation_covariance, dtype=np.float64),
+               np.asarray(msg.angular_velocity_covariance, dtype=np.float64),
+               np.asarray(msg.linear_acceleration_covariance, dtype=np.float64), msg.header.frame_id, topic)
+
+
+def imu_problem(rec: Imu) -> str | None:
+    """Why an IMU sample is unusable (a provided rate or acceleration that is not finite), else None."""
+    if rec.has_angular_velocity and not np.isfinite(rec.angular_velocity).all():
+        return "a non-finite angular velocity"
+    if rec.has_linear_acceleration and not np.isfinite(rec.linear_acceleration).all():
+        return "a non-finite linear acceleration"
     return None
 
 
@@ -153,6 +175,16 @@ def odometry_msg(ts, o: Odometry, covariance: np.ndarray | None = None):
                                 twist=TwC(twist=twist, covariance=np.zeros(36)))
 
 
+def imu_msg(ts, m: Imu):
+    """sensor_msgs/Imu from an Imu record (covariances as given, −1 markers included)."""
+    return ts.types[T.IMU](header=header(ts, m.stamp_ns, m.frame_id), orientation=_quat(ts, m.orientation),
+                           orientation_covariance=np.asarray(m.orientation_cov, dtype=np.float64).reshape(9),
+                           angular_velocity=_vec3(ts, m.angular_velocity),
+                           angular_velocity_covariance=np.asarray(m.angular_velocity_cov, dtype=np.float64).reshape(9),
+                           linear_acceleration=_vec3(ts, m.linear_acceleration),
+                           linear_acceleration_covariance=np.asarray(m.linear_acceleration_cov, dtype=np.float64).reshape(9))
+
+
 def tf_msg(ts, tfs: Transforms):
     TS = ts.types["geometry_msgs/msg/TransformStamped"]
     Tr = ts.types["geometry_msgs/msg/Transform"]
@@ -216,4 +248,6 @@ def record_msg(ts, rec) -> tuple[str, object]:
         return T.ODOMETRY, odometry_msg(ts, rec)
     if isinstance(rec, Transforms):
         return T.TF, tf_msg(ts, rec)
+    if isinstance(rec, Imu):
+        return T.IMU, imu_msg(ts, rec)
     raise TypeError(f"no ROS message for {type(rec).__name__}")

@@ -112,7 +112,7 @@ class McapLog(LogReader):
     def read(self, topics: Iterable[str] | None = None) -> Iterator:
         wanted = None if topics is None else list(topics)
         for schema, channel, message in self._messages(wanted):
-            rec = self._decode(schema, channel, message)
+            rec = self._usable(self._decode(schema, channel, message))
             if rec is not None:
                 yield rec
 

@@ -194,6 +194,6 @@ class Ros1Bag(LogReader):
         for _, topic, msgtype, raw in self._raw(topics):
             if msgtype not in self._ts.fielddefs:
                 continue
-            rec = to_record(self._ts.deserialize_ros1(raw, msgtype), msgtype, topic)
+            rec = self._usable(to_record(self._ts.deserialize_ros1(raw, msgtype), msgtype, topic))
             if rec is not None:
                 yield rec

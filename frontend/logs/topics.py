@@ -14,6 +14,11 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 TF = "tf2_msgs/msg/TFMessage"
 IMU = "sensor_msgs/msg/Imu"
 
+# IMU topic names preferred when several exist: the usual driver outputs (imu_filter_madgwick reads
+# /imu/data_raw and publishes /imu/data; both carry the raw gyro rates).
+_IMU_NAMES = ("/imu", "/imu/data", "/imu/data_raw", "/imu_data", "/mobile_base/sensors/imu_data")
+_OFF = ("none", "off", "-")  # [topics] imu = "none": ignore the log's IMU (e.g. to compare with and without it)
+
 # Names that mark a topic as ground truth or as our own output rather than the robot's sensors.
 _NOT_SENSOR = ("ground_truth", "groundtruth", "/gt", "truth", "kinect_scan", "kosmap")
 
@@ -27,7 +32,7 @@ class TopicsConfig(StageConfig):
     info: list = param([], doc="camera info topics, in the order of `depth`")
     scan: str = param("", doc="laser scan topic (sensor_msgs/LaserScan)")
     odom: str = param("", doc="wheel odometry topic (nav_msgs/Odometry)")
-    imu: str = param("", doc="IMU topic (sensor_msgs/Imu)")
+    imu: str = param("", doc="IMU topic (sensor_msgs/Imu); \"none\" ignores the log's IMU")
     ground_truth: str = param("", doc="ground-truth pose topic (nav_msgs/Odometry), for scoring only")
 
 
@@ -103,7 +108,12 @@ def detect_topics(types: dict[str, str], cfg: TopicsConfig | None = None) -> Det
 
     out.scan = _require(cfg.scan, "scan", types, LASER_SCAN) if cfg.scan else _pick(by_type.get(LASER_SCAN, []), ("/scan",))
     out.odom = _require(cfg.odom, "odom", types, ODOMETRY) if cfg.odom else _pick(by_type.get(ODOMETRY, []), ("/odom",))
-    out.imu = _require(cfg.imu, "imu", types, IMU) if cfg.imu else _pick(by_type.get(IMU, []), ("/imu",))
+    if cfg.imu.lower() in _OFF:
+        out.imu = None
+    elif cfg.imu:
+        out.imu = _require(cfg.imu, "imu", types, IMU)
+    else:
+        out.imu = _pick(by_type.get(IMU, []), _IMU_NAMES)
     if cfg.ground_truth:
         out.ground_truth = _require(cfg.ground_truth, "ground-truth", types, ODOMETRY)
     else:

@@ -43,13 +43,14 @@ def register(app: typer.Typer) -> None:
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
         info_topic: O.InfoTopicOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
+        imu_topic: O.ImuTopicOpt = None,
     ) -> None:
         """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
         with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
         Ctrl-C stops reading and writes what is done, marked partial (exit code 130); a second Ctrl-C aborts."""
         from mapping.pipeline import build as run
 
-        cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic)
+        cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         show = not quiet and sys.stderr.isatty()
         res = run(log, out, cfg, blueprint=blueprint, workers=workers, progress=show,
                   say=None if quiet else (lambda m: print(m, file=sys.stderr)))

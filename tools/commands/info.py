@@ -98,9 +98,10 @@ def register(app: typer.Typer) -> None:
         as_json: Annotated[bool, typer.Option("--json", help="Print JSON for scripts.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
         info_topic: O.InfoTopicOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
+        imu_topic: O.ImuTopicOpt = None,
     ) -> None:
         """Show a log's format, duration, topics with counts and rates, and the topics kosmap will use."""
-        cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic)
+        cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         summary = log_summary(log, cfg)
         if as_json:
             print(json.dumps(summary, indent=2))

@@ -24,13 +24,14 @@ def register(app: typer.Typer) -> None:
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
         workers: Annotated[int, typer.Option("--workers", help="--source kos: processes for FSPF+ and KOS (0 = serial, here).")] = 0,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
-        depth_topic: O.DepthTopicOpt = None,
+        depth_topic: O.DepthTopicOpt = None, imu_topic: O.ImuTopicOpt = None,
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
         from mapping.slam import build_map, evaluate, run_slam, save_run
 
-        cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic)
+        cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic,
+                            imu_topic=imu_topic)
         if relations is not None and not relations.is_file():
             from backend.metrics import MetricsError
 
