@@ -121,6 +121,10 @@ class McapWriter(LogWriter):
         data = self.ts.serialize_cdr(msg, msgtype)
         self._w.add_message(cid, log_time=int(t_ns), data=bytes(data), publish_time=int(t_ns), sequence=seq)
 
+    def write_metadata(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record (name → string map), e.g. a simulator's settings and truths."""
+        self._w.add_metadata(name, {str(k): str(v) for k, v in data.items()})
+
     def _finish(self) -> None:
         if not self._fh.closed:
             try:

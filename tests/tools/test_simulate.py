@@ -244,17 +244,17 @@ def test_odometry_drifts_with_distance_and_rotation():
     traj = Trajectory((0.0, 0.0, 0.0))
     traj.drive((20.0, 0.0), 0.5, 0.5)
     true = traj.pose(np.append(np.arange(0.0, traj.duration, 0.02), traj.duration))
-    exact = odometry(true, OdometryNoise(0, 0, 0, 0, 0, 0), np.random.default_rng(0))
+    exact = odometry(true, OdometryNoise(0, 0, 0, 0, 0, 0, 0, 0), np.random.default_rng(0))
     assert np.max(np.abs(exact - true)) < 1e-9
-    scaled = odometry(true, OdometryNoise(0.01, 0, 0, 0, 0, 0), np.random.default_rng(0))
+    scaled = odometry(true, OdometryNoise(0.01, 0, 0, 0, 0, 0, 0, 0), np.random.default_rng(0))
     assert scaled[-1, 0] == pytest.approx(20.2, abs=1e-6)  # 1 % of 20 m
-    bias = odometry(true, OdometryNoise(0, 0, 0.1, 0, 0, 0), np.random.default_rng(0))
+    bias = odometry(true, OdometryNoise(0, 0, 0.1, 0, 0, 0, 0, 0), np.random.default_rng(0))
     assert math.degrees(bias[-1, 2]) == pytest.approx(2.0, abs=1e-6)  # 0.1°/m over 20 m
     # a turn in place: rotation scale error 1.5 % of 90°
     spin = Trajectory((0.0, 0.0, 0.0))
     spin.turn(math.pi / 2, 0.8, 1.5)
     tr = spin.pose(np.arange(0.0, spin.duration + 0.02, 0.02))
-    rot = odometry(tr, OdometryNoise(0, 0.015, 0, 0, 0, 0), np.random.default_rng(0))
+    rot = odometry(tr, OdometryNoise(0, 0.015, 0, 0, 0, 0, 0, 0), np.random.default_rng(0))
     assert math.degrees(rot[-1, 2]) == pytest.approx(90 * 1.015, abs=1e-6)
     assert np.allclose(rot[:, :2], 0.0)
 
@@ -410,7 +410,7 @@ def test_log_reads_back_through_open_log(room, room_log):
         assert counts["/kinect2/sd/image_depth_rect"] == 30 and counts["/kinect2_rear/sd/image_depth_rect"] == 30
         assert counts["/kinect2/sd/surface_id"] == 30 and counts["/kinect2/sd/camera_info"] == 30
         assert counts["/scan"] == 40 and counts["/odom"] == 50 and counts["/ground_truth/odom"] == 101
-        assert counts["/tf_static"] == 1
+        assert counts["/tf_static"] == 1 and counts["/imu"] == 200  # 1 s at 200 Hz
         det = detect_topics(info.types())
         assert det.depth == ["/kinect2/sd/image_depth_rect", "/kinect2_rear/sd/image_depth_rect"]
         assert det.info["/kinect2_rear/sd/image_depth_rect"] == "/kinect2_rear/sd/camera_info"
@@ -420,7 +420,8 @@ def test_log_reads_back_through_open_log(room, room_log):
     assert stamps == sorted(stamps)
     tf = next(r for r in recs if isinstance(r, Transforms))
     mounts = {t.child: t for t in tf.transforms}
-    assert set(mounts) == {"kinect2_ir_optical_frame", "kinect2_rear_ir_optical_frame", "laser"}
+    assert set(mounts) == {"kinect2_ir_optical_frame", "kinect2_rear_ir_optical_frame", "laser", "imu_link"}
+    assert np.allclose(mounts["imu_link"].matrix(), np.eye(4)) and mounts["imu_link"].parent == "base_link"
     Rm = mounts["kinect2_ir_optical_frame"].matrix()[:3, :3]
     assert np.allclose(Rm, [[0, 0, 1], [-1, 0, 0], [0, -1, 0]], atol=1e-12)  # REP 103: z forward, x right, y down
     assert np.allclose(mounts["kinect2_rear_ir_optical_frame"].matrix()[:3, 2], [-1, 0, 0], atol=1e-12)
@@ -525,7 +526,7 @@ def test_three_cameras_read_back_each_with_its_info_and_mount(capsys, tmp_path):
         recs = list(log.read(det.wanted()))
     tf = next(r for r in recs if isinstance(r, Transforms))
     mounts = {t.child: t.matrix() for t in tf.transforms}
-    assert set(mounts) == set(frames)
+    assert set(mounts) == set(frames) | {"imu_link"}
     # the optical axis (z) of each camera in base_link, and its position
     for frame, pos, axis in (("kinect2_ir_optical_frame", [0.1, 0, 1.0], [1, 0, 0]),
                              ("kinect2_rear_ir_optical_frame", [-0.1, 0, 1.0], [-1, 0, 0]),

@@ -86,6 +86,7 @@ def register(app: typer.Typer) -> None:
         path: Annotated[Optional[Path], typer.Option("--path", help="Waypoints file (YAML or 'x y' lines) instead of the world's path.")] = None,
         rear_camera: Annotated[bool, typer.Option("--rear-camera", help="Add a rear-facing Kinect.")] = False,
         no_laser: Annotated[bool, typer.Option("--no-laser", help="Leave the laser scanner out.")] = False,
+        no_imu: Annotated[bool, typer.Option("--no-imu", help="Leave the IMU (/imu, 200 Hz gyro + accelerometer) out.")] = False,
         surface_ids: Annotated[bool, typer.Option("--surface-ids", help="Also write each depth frame's surface ids.")] = False,
         camera_height: Annotated[Optional[float], typer.Option("--camera-height", help="Front camera height (m).")] = None,
         camera_pitch: Annotated[Optional[float], typer.Option("--camera-pitch", help="Front camera pitch (deg, > 0 looks down).")] = None,
@@ -96,7 +97,7 @@ def register(app: typer.Typer) -> None:
         set_: Annotated[Optional[list[str]], typer.Option("--set", "-s", help="Override a simulator setting: key=value (repeatable).")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
     ) -> None:
-        """Simulate a robot (Kinect v2 depth, Hokuyo laser, drifting odometry, true pose) driving through a
+        """Simulate a robot (Kinect v2 depth, Hokuyo laser, drifting odometry, a MEMS IMU, true pose) driving through a
         building and write the log as MCAP; optionally export the building's blueprint."""
         from tools.simulate import load_path, load_world
         from tools.simulate import simulate as run
@@ -104,7 +105,8 @@ def register(app: typer.Typer) -> None:
         if out is None and blueprint is None:
             raise ConfigError("nothing to do: give --out LOG.mcap (the log) and/or --blueprint MAP.yaml (the floor plan)")
         cfg_flags: dict = {"seed": seed, "duration": duration, "surface_ids": True if surface_ids else None,
-                           "rear_camera": True if rear_camera else None, "laser": False if no_laser else None}
+                           "rear_camera": True if rear_camera else None, "laser": False if no_laser else None,
+                           "imu": False if no_imu else None}
         cfg = _sim_config(config, set_, **cfg_flags)
         if camera_height is not None or camera_pitch is not None:
             xyz, rpy = list(cfg.camera_xyz), list(cfg.camera_rpy_deg)
@@ -145,4 +147,8 @@ def register(app: typer.Typer) -> None:
                   f"{summary['wall_s']:.1f} s ({summary['cpu_s']:.1f} s CPU): {summary['real_time_factor']:.2f}× real time")
             print("  " + ", ".join(f"{t} {n}" for t, n in summary["messages"].items()))
             print(f"  odometry drift at the end: {summary['odom_drift_m']:.3f} m, {summary['odom_drift_deg']:.2f}°")
+            od, im = summary["truth"]["odometry"], summary["truth"]["imu"]
+            print(f"  truth: odometry distance scale {od['distance_scale']:.5f}, heading drift "
+                  f"{od['heading_drift_deg_per_m']:.3f}°/m" + (f", gyro z bias {im['gyro_bias_initial_dps'][2]:+.4f}°/s "
+                                                              f"at the start" if im else ""))
             print(f"  settings and summary: {side}")

@@ -12,6 +12,7 @@ from frontend.errors import ConfigError
 from frontend.params import StageConfig, param
 from tools.simulate.motion import OdometryNoise
 from tools.simulate.render import LaserModel, camera_mount, kinect_v2_model, laser_mount
+from tools.simulate.imu import ImuNoise
 from tools.simulate.sensors import DepthNoise, LaserNoise
 
 _POS = {"lo": 0.0, "lo_open": True}
@@ -78,13 +79,36 @@ class SimConfig(StageConfig):
     scan_topic: str = param("/scan", doc="laser topic")
     # odometry and ground truth
     odom_rate: float = param(50.0, **_POS, doc="wheel odometry rate", unit="Hz")
-    odom_scale_error: float = param(0.01, lo=-0.5, hi=0.5, doc="translation scale error (wheel radius)")
-    odom_rot_scale_error: float = param(0.015, lo=-0.5, hi=0.5, doc="rotation scale error (wheel base)")
-    odom_heading_bias_deg_per_m: float = param(0.1, lo=-10.0, hi=10.0, doc="heading drift per metre", unit="deg/m")
+    odom_scale_error_left: float = param(0.010, lo=-0.5, hi=0.5, doc="left wheel radius error: its odometry counts this "
+                                         "fraction more than it rolled (distance scale = mean of the wheels')")
+    odom_scale_error_right: float = param(0.011, lo=-0.5, hi=0.5, doc="right wheel radius error; right − left makes "
+                                          "a heading drift of (right − left)/wheel_base rad per metre")
+    odom_wheel_base: float = param(0.5, **_POS, doc="distance between the drive wheels", unit="m")
+    odom_scale_error: float = param(0.0, lo=-0.5, hi=0.5, doc="common translation scale error on top of the wheels'")
+    odom_rot_scale_error: float = param(0.005, lo=-0.5, hi=0.5, doc="wheel base error: rotation scale on top of the "
+                                        "wheels' (total turn-in-place scale (1 + this)(1 + mean wheel error))")
+    odom_heading_bias_deg_per_m: float = param(0.1, lo=-10.0, hi=10.0, doc="heading drift per metre on top of the "
+                                               "wheels' (total: OdometryNoise.heading_drift_deg_per_m)", unit="deg/m")
     odom_trans_noise: float = param(0.01, lo=0.0, doc="translation noise σ per √m", unit="m/√m")
     odom_rot_noise_deg: float = param(1.0, lo=0.0, doc="rotation noise σ per √rad turned", unit="deg/√rad")
     odom_rot_noise_per_m_deg: float = param(0.5, lo=0.0, doc="rotation noise σ per √m driven", unit="deg/√m")
     odom_topic: str = param("/odom", doc="wheel odometry topic (frame odom → base_link)")
+    # IMU (a consumer MEMS part, e.g. BMI088 / ICM-20948 class, mounted level on base_link, frame imu_frame)
+    imu: bool = param(True, doc="simulate a sensor_msgs/Imu stream (gyro + accelerometer, no orientation)")
+    imu_rate: float = param(200.0, **_POS, doc="IMU sample rate", unit="Hz")
+    imu_topic: str = param("/imu", doc="IMU topic")
+    imu_frame: str = param("imu_link", doc="IMU frame id (identity mount on base_link in /tf_static)")
+    gyro_noise_density: float = param(0.005, lo=0.0, doc="gyro white noise density (angle random walk); σ per "
+                                      "sample = density·√imu_rate", unit="deg/s/√Hz")
+    gyro_bias_sigma: float = param(0.02, lo=0.0, doc="σ of the gyro's turn-on bias per axis (what a start-up "
+                                   "calibration leaves)", unit="deg/s")
+    gyro_bias_walk: float = param(0.0003, lo=0.0, doc="gyro bias rate random walk K: the bias wanders by K·√T in T "
+                                  "seconds (0.0003 → 0.003 °/s ≈ 11 °/h in 100 s; Allan K·√(τ/3))", unit="deg/s/√s")
+    accel_noise_density: float = param(150e-6, lo=0.0, doc="accelerometer white noise density", unit="g/√Hz")
+    accel_bias_sigma: float = param(0.02, lo=0.0, doc="σ of the accelerometer's constant bias per axis", unit="m/s²")
+    imu_gaps: list = param([], doc="faults: [[t0, t1], ...] seconds from the start with no IMU messages", unit="s")
+    imu_stuck: list = param([], doc="faults: [[t0, t1], ...] seconds with the gyro output frozen at its last value",
+                            unit="s")
     gt_rate: float = param(100.0, **_POS, doc="ground-truth pose rate", unit="Hz")
     gt_topic: str = param("/ground_truth/odom", doc="ground-truth topic (frame map → base_link)")
     compression: str = param("zstd", choices=("zstd", "lz4", "none"), doc="MCAP chunk compression")
@@ -109,7 +133,9 @@ class SimConfig(StageConfig):
         if self.depth_sigma_4m < self.depth_sigma_1m or (self.depth_sigma_1m == 0) != (self.depth_sigma_4m == 0):
             raise ConfigError(f"config [{s}] depth_sigma_4m = {self.depth_sigma_4m} must be ≥ depth_sigma_1m = "
                               f"{self.depth_sigma_1m} (both 0 for no axial noise)")
-        for name in ("camera_ns", "rear_ns", "scan_topic", "odom_topic", "gt_topic"):
+        for name in ("imu_gaps", "imu_stuck"):
+            object.__setattr__(self, name, _intervals(s, name, getattr(self, name)))
+        for name in ("camera_ns", "rear_ns", "scan_topic", "odom_topic", "gt_topic", "imu_topic"):
             if not getattr(self, name).startswith("/"):
                 raise ConfigError(f"config [{s}] {name} = {getattr(self, name)!r} must start with '/'")
         object.__setattr__(self, "extra_cameras", [_extra_camera(s, k, e) for k, e in enumerate(self.extra_cameras)])
@@ -169,10 +195,32 @@ class SimConfig(StageConfig):
 
     def odometry_noise(self) -> OdometryNoise:
         return OdometryNoise(self.odom_scale_error, self.odom_rot_scale_error, self.odom_heading_bias_deg_per_m,
-                             self.odom_trans_noise, self.odom_rot_noise_deg, self.odom_rot_noise_per_m_deg)
+                             self.odom_trans_noise, self.odom_rot_noise_deg, self.odom_rot_noise_per_m_deg,
+                             self.odom_scale_error_left, self.odom_scale_error_right, self.odom_wheel_base)
+
+    def imu_noise(self) -> ImuNoise:
+        return ImuNoise(self.imu_rate, self.gyro_noise_density, self.gyro_bias_sigma, self.gyro_bias_walk,
+                        self.accel_noise_density, self.accel_bias_sigma)
 
 
 _EXTRA_KEYS = ("ns", "frame", "xyz", "rpy_deg")
+
+
+def _intervals(section: str, name: str, value) -> list[list[float]]:
+    """A checked list of [t0, t1] intervals (seconds, t0 < t1), as floats."""
+    where = f"config [{section}] {name} = {value!r}"
+    if not isinstance(value, (list, tuple)):
+        raise ConfigError(f"{where} must be a list of [t0, t1] intervals in seconds, e.g. [[10, 12.5]]")
+    out = []
+    for iv in value:
+        if (not isinstance(iv, (list, tuple)) or len(iv) != 2
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x) for x in iv)):
+            raise ConfigError(f"{where}: each interval must be [t0, t1] in seconds, e.g. [[10, 12.5]]")
+        t0, t1 = float(iv[0]), float(iv[1])
+        if not 0.0 <= t0 < t1:
+            raise ConfigError(f"{where}: interval [{t0}, {t1}] must have 0 ≤ t0 < t1")
+        out.append([t0, t1])
+    return out
 
 
 def default_frame(ns: str) -> str:

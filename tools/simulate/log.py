@@ -2,7 +2,10 @@
 
 Topics as kinect2_bridge, hokuyo_node and a wheel base name theirs (DESIGN.md): depth images (16UC1 mm)
 with CameraInfo per camera, /scan, /odom (odom → base_link, drifting), the true pose on /ground_truth/odom
-(map → base_link, 100 Hz) and /tf_static for the mounts; optionally each depth frame's surface ids.
+(map → base_link, 100 Hz), a MEMS IMU on /imu (sensor_msgs/Imu, 200 Hz, frame imu_link: an identity mount
+on base_link) and /tf_static for the mounts; optionally each depth frame's surface ids. The effective settings
+and the truths a calibration should recover (odometry scale, gyro bias) are written as MCAP metadata
+"kosmap.simulation" (read them with `simulation_truth(log)`).
 Every random draw comes from a stream seeded by (seed, stream), consumed in a fixed order, and the MCAP
 writer records no wall-clock time, so the same seed gives a byte-identical file.
 """
@@ -10,6 +13,7 @@ writer records no wall-clock time, so the same seed gives a byte-identical file.
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import time
 from collections.abc import Callable
@@ -18,16 +22,18 @@ from pathlib import Path
 import numpy as np
 
 from frontend.logs.writer import McapWriter
-from frontend.records import DepthFrame, Odometry, Scan, Transforms
+from frontend.records import DepthFrame, Imu, Odometry, Scan, Transform, Transforms
 from tools.simulate.config import SimConfig
+from tools.simulate.imu import imu_stream, imu_truth
 from tools.simulate.motion import Trajectory, check_path, odometry, plan, wrap
 from tools.simulate.render import pose_matrix, render_depth_geometry, render_laser_geometry
 from tools.simulate.sensors import apply_laser_noise, depth_noise_mm
 from tools.simulate.world import PathSpec, World, WorldError
 
 # phase of each stream within its period (s), so that streams interleave as in a real log
-_PHASE = {"gt": 0.0, "odom": 0.001, "depth": 0.004, "scan": 0.009}
-_DEPTH, _SCAN, _ODOM, _GT = 0, 1, 2, 3
+_PHASE = {"gt": 0.0, "odom": 0.001, "depth": 0.004, "scan": 0.009, "imu": 0.002}
+_DEPTH, _SCAN, _ODOM, _GT, _IMU = 0, 1, 2, 3, 4
+METADATA = "kosmap.simulation"  # MCAP metadata record: {"config": JSON, "truth": JSON}
 
 
 def trajectory(world: World, cfg: SimConfig, path: PathSpec | None = None) -> Trajectory:
@@ -96,6 +102,17 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
                _GT: _stamps(cfg.gt_rate, "gt", duration)}
     if cfg.laser:
         streams[_SCAN] = _stamps(cfg.laser_rate, "scan", duration)
+    imu_noise = cfg.imu_noise()
+    imu = None
+    if cfg.imu:
+        imu = imu_stream(traj, _stamps(cfg.imu_rate, "imu", duration), imu_noise, np.random.default_rng([cfg.seed, 4]),
+                         cfg.imu_gaps, cfg.imu_stuck)
+        imu_rows = np.flatnonzero(imu.keep)
+        streams[_IMU] = imu.t[imu_rows]
+        g_cov = np.diag([imu_noise.gyro_sigma ** 2] * 3).reshape(9)
+        a_cov = np.diag([imu_noise.accel_sigma ** 2] * 3).reshape(9)
+        o_cov = np.array([-1.0] + [0.0] * 8)  # orientation not provided (a raw MEMS stream)
+        o_id = np.array([0.0, 0.0, 0.0, 1.0])
     ev_t = np.concatenate([np.round(streams[k] * 1e9).astype(np.int64) for k in streams])
     ev_kind = np.concatenate([np.full(len(streams[k]), k) for k in streams])
     ev_idx = np.concatenate([np.arange(len(streams[k])) for k in streams])
@@ -110,7 +127,9 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
     beam_dt = laser_model.scan_time * laser_model.angle_increment / (2 * math.pi)
     gt_poses = traj.pose(streams[_GT])
     odom_true = traj.pose(streams[_ODOM])
-    odom_poses = odometry(odom_true, cfg.odometry_noise(), np.random.default_rng([cfg.seed, 3]))
+    odom_noise = cfg.odometry_noise()
+    odom_poses = odometry(odom_true, odom_noise, np.random.default_rng([cfg.seed, 3]))
+    truth = {"odometry": odom_noise.truth(), "imu": imu_truth(imu, imu_noise) if imu is not None else None}
 
     counts: dict[str, int] = {}
     timing = {"render_depth": 0.0, "depth_noise": 0.0, "render_laser": 0.0, "write": 0.0}
@@ -126,12 +145,19 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
         mounts = tuple(dataclasses.replace(m, stamp_ns=t0_ns) for _, m in cameras)
         if cfg.laser:
             mounts += (dataclasses.replace(laser_mount, stamp_ns=t0_ns),)
+        if cfg.imu:
+            mounts += (dataclasses.replace(Transform.identity("base_link", cfg.imu_frame), stamp_ns=t0_ns),)
         put(Transforms(t0_ns, mounts, True, "/tf_static"), "/tf_static")
+        w.write_metadata(METADATA, {"config": json.dumps(dataclasses.asdict(cfg), sort_keys=True),
+                                    "truth": json.dumps(truth, sort_keys=True)})
         for j in order:
             kind, i = int(ev_kind[j]), int(ev_idx[j])
             t = float(streams[kind][i])
             stamp = ns(t)
-            if kind == _GT:
+            if kind == _IMU:
+                k = imu_rows[i]
+                put(Imu(stamp, imu.gyro[k], imu.accel[k], o_id, o_cov, g_cov, a_cov, cfg.imu_frame), cfg.imu_topic)
+            elif kind == _GT:
                 x, y, yaw = gt_poses[i]
                 put(Odometry(stamp, float(x), float(y), float(yaw), "map", "base_link"), cfg.gt_topic)
             elif kind == _ODOM:
@@ -177,4 +203,17 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
         "depth_frames": len(streams[_DEPTH]) * len(cameras), "scans": len(streams.get(_SCAN, [])),
         "wall_s": wall, "cpu_s": cpu, "real_time_factor": duration / wall if wall > 0 else float("inf"),
         "cpu_real_time_factor": duration / cpu if cpu > 0 else float("inf"), "timing_cpu_s": timing, "odom_drift_m": drift, "odom_drift_deg": drift_yaw, "bytes": out.stat().st_size,
+        "truth": truth,
     }
+
+
+def simulation_truth(log: str | Path) -> dict | None:
+    """The simulator's effective settings and truths of an MCAP log it wrote ({"config": {...}, "truth":
+    {"odometry": {"distance_scale", ...}, "imu": {"gyro_bias_initial_dps", ...}}}), or None for other logs."""
+    from mcap.reader import make_reader
+
+    with open(log, "rb") as fh:
+        for rec in make_reader(fh).iter_metadata():
+            if rec.name == METADATA:
+                return {k: json.loads(v) for k, v in rec.metadata.items()}
+    return None
