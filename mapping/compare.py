@@ -12,8 +12,10 @@ maps are resampled, so maps of different resolutions and sizes compare cell area
   - wall cells: occupancy ≥ occupied_thresh and (walls = "surface") free space among the 8 neighbours;
   - precision(tol): fraction of A's wall cells with a B wall cell within tol (centre to centre); recall(tol):
     the same from B to A; F1 their harmonic mean;
-  - coverage(tol): fraction of B's wall cells within tol of any cell A observed (free or occupied), and
-    recall_observed(tol): the recall over those walls only (what A got right of what it saw);
+  - coverage(tol): fraction of B's wall faces that A saw: within tol of space both maps call free (a run that
+    drove past a room's closed side never saw it, and a 15 cm wall's far face is not seen from the corridor);
+    recall_observed(tol) and f1_observed(tol): recall and F1 over those faces only (what A got right of what it
+    saw), the fair score of a partial exploration; F1 itself scores A against the whole of B;
   - distances A→B and B→A: mean and median distance from each wall cell to the other map's nearest one;
   - free space, over the cells both maps decide (free: occupancy < free_thresh, or a wall): agreement of
     the labels, IoU of the free cells, and the fraction of A's free cells that lie on B's walls.
@@ -359,18 +361,19 @@ def compare(a: OccupancyGrid, b: OccupancyGrid, cfg: CompareConfig | None = None
                            f"(occupancy ≥ {cfg.occupied_thresh}) where the maps overlap: nothing to compare")
     r = cv.resolution
     dA, dB = _edt(wallA) * r, _edt(wallB) * r
-    dKnownA = _edt(A >= 0) * r
+    dSeen = _edt(freeA & freeB) * r  # metres to space both call free: B's faces that A could have seen
     a2b, b2a = dB[wallA], dA[wallB]
     eps = 1e-6
     per_tol = {}
     for tol in cfg.tolerances:
         p = float(np.mean(a2b <= tol + eps))
         rc = float(np.mean(b2a <= tol + eps))
-        seen = dKnownA[wallB] <= tol + eps
+        seen = dSeen[wallB] <= max(tol, 1.5 * r) + eps
+        ro = float(np.mean(b2a[seen] <= tol + eps)) if seen.any() else None
         per_tol[f"{tol:.2f}"] = {"tolerance": tol, "precision": p, "recall": rc,
                                  "f1": 2 * p * rc / (p + rc) if p + rc > 0 else 0.0,
-                                 "coverage": float(np.mean(seen)),
-                                 "recall_observed": float(np.mean(b2a[seen] <= tol + eps)) if seen.any() else None}
+                                 "coverage": float(np.mean(seen)), "recall_observed": ro,
+                                 "f1_observed": None if ro is None else (2 * p * ro / (p + ro) if p + ro > 0 else 0.0)}
     definite = (occA | freeA) & (occB | freeB)
     both_free = freeA & freeB & definite
     any_free = (freeA | freeB) & definite
@@ -423,11 +426,12 @@ def metrics_markdown(m: dict, title: str = "Map comparison") -> str:
         lines.append("Alignment: none (--no-align: the frames are taken to agree)")
     c = m["canvas"]
     lines += [f"Scored on a {c['width']}×{c['height']} canvas at {c['resolution']:.3f} m.", "",
-              "| tolerance | precision | recall | F1 | coverage | recall of observed walls |", "|---|---|---|---|---|---|"]
+              "| tolerance | precision | recall | F1 | walls seen | recall of seen walls | F1 of seen walls |",
+              "|---|---|---|---|---|---|---|"]
     f = lambda v: "–" if v is None else f"{v:.3f}"  # noqa: E731
     for t in m["tolerances"].values():
         lines.append(f"| {t['tolerance']:.2f} m | {t['precision']:.3f} | {t['recall']:.3f} | {t['f1']:.3f} | "
-                     f"{t['coverage']:.3f} | {f(t['recall_observed'])} |")
+                     f"{t['coverage']:.3f} | {f(t['recall_observed'])} | {f(t.get('f1_observed'))} |")
     ab, ba, fr = m["distance_a_to_b"], m["distance_b_to_a"], m["free"]
     lines += ["", "| distance | mean | median |", "|---|---|---|",
               f"| A walls → nearest B wall | {f(ab['mean'])} m | {f(ab['median'])} m |",

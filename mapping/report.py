@@ -212,17 +212,18 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
             c = m["comparisons"][key]
             v = c["tolerances"][TOL]
             rows.append([f"{_label(c['a'], m)} vs {_label(c['b'], m)}", _f(v["f1"]), _f(v["precision"]), _f(v["recall"]),
-                         _f(v["coverage"]), _f(v["recall_observed"])])
-        B.append(("table", ["map A vs reference B, at 0.10 m", "F1", "precision", "recall", "coverage",
-                            "recall of observed"], rows))
+                         _f(v["coverage"]), _f(v["recall_observed"]), _f(v.get("f1_observed"))])
+        B.append(("table", ["map A vs reference B, at 0.10 m", "F1", "precision", "recall", "walls seen",
+                            "recall of seen walls", "F1 of seen walls"], rows))
         low = [(m["comparisons"][k], m["comparisons"][k]["tolerances"][TOL]["coverage"]) for k in h["f1"]
                if m["comparisons"][k]["b"] == "blueprint"]
         low = [(c, cov) for c, cov in low if cov is not None and cov < 0.95]
         if low:
             seen = ", ".join(f"{_label(c['a'], m)} {100 * cov:.0f} %" for c, cov in low)
-            B.append(("p", f"Coverage bounds recall: on this path the maps saw only part of the blueprint's walls "
-                           f"({seen}); walls never in view count as missed, so recall and F1 cannot exceed what was "
-                           f"seen. 'Recall of observed' is the recall over the walls a map did see."))
+            B.append(("p", f"Coverage bounds recall: on this path the maps saw only part of the blueprint's wall faces "
+                           f"({seen}); faces never in view (rooms not entered, the far side of a wall) count as missed, "
+                           f"so recall and F1 cannot exceed what was seen. 'Recall/F1 of seen walls' score the map "
+                           f"against the faces it saw: how right the map is, apart from how much the robot explored."))
     rows = [[f"{'KOS' if k == 'kos' else 'laser'} SLAM", _f(v, 3, " m"),
              _f(m["slam"][k].get("ate_odometry", {}).get("rmse"), 3, " m")] for k, v in h["ate"].items()]
     if rows:
@@ -247,19 +248,20 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
         B.append(("h", 2, "Overlays and comparison"))
         B.append(("p", "Map A (red) aligned onto reference B (green); black where they agree within the smallest "
                        "tolerance; pale cells are occupied but unscored (inside thick walls). Precision: share of A's "
-                       "wall cells with a B wall within the tolerance; recall: the same from B to A; coverage: share "
-                       "of B's walls that A observed at all (a blueprint's rooms the robot never looked into lower "
-                       "recall, not precision); 'recall of observed' is the recall over those walls only."))
+                       "wall cells with a B wall within the tolerance; recall: the same from B to A; walls seen: share "
+                       "of B's wall faces in front of space both maps call free (a blueprint's rooms the robot never "
+                       "looked into lower recall, not precision); 'recall/F1 of seen walls' score those faces only."))
         imgs = [(out / f"overlay_{k}.png", f"A = {_label(c['a'], m)}, B = {_label(c['b'], m)}") for k, c in comps.items()]
         B.append(("images", imgs))
         for k, c in comps.items():
             rows = []
             for tol, v in c["tolerances"].items():
                 rows.append([f"{float(tol):.2f} m", _f(v["precision"]), _f(v["recall"]), _f(v["f1"]), _f(v["coverage"]),
-                             _f(v["recall_observed"])])
+                             _f(v["recall_observed"]), _f(v.get("f1_observed"))])
             al = c["alignment"]
             B.append(("h", 3, f"{_label(c['a'], m)} vs {_label(c['b'], m)}"))
-            B.append(("table", ["tolerance", "precision", "recall", "F1", "coverage", "recall of observed"], rows))
+            B.append(("table", ["tolerance", "precision", "recall", "F1", "walls seen", "recall of seen walls",
+                                "F1 of seen walls"], rows))
             fr_ = c["free"]
             B.append(("p", (f"Alignment A→B: x {_f(al.get('x'), 3)} m, y {_f(al.get('y'), 3)} m, yaw "
                             f"{_f(al.get('yaw_deg'), 2)}°, RMS {_f(al.get('rms'), 3)} m. " if al.get("aligned") else
