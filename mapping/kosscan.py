@@ -64,6 +64,14 @@ class CameraSync:
         return out
 
 
+class _RawDepth(DepthFrame):
+    """A 16UC1 frame whose `meters()` is the raw image: the frame stage converts it (mapping/framepool.py), in the
+    worker when there are workers, so the reading process neither converts nor ships float32 frames."""
+
+    def meters(self) -> np.ndarray:
+        return self.image
+
+
 @dataclass
 class KosStep:
     """One time step: the merged KOS scans of every level (and the fused scan when a laser is near in time)."""
@@ -128,6 +136,8 @@ class KosStream:
                 self.resolver.count += 1  # the frame keeps its index (its seed) whether or not others are skipped
                 return []
             self._last[rec.topic] = rec.stamp_ns
+        if isinstance(rec, DepthFrame) and rec.encoding == "16UC1":
+            rec = _RawDepth(rec.stamp_ns, rec.image, rec.encoding, rec.frame_id, rec.topic)
         item = self.resolver.observe(rec)
         if isinstance(rec, Transforms) and rec.static:
             self.run.statics.append(rec)
