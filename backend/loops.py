@@ -1,22 +1,33 @@
 """Loop closure: submaps of keyframes, candidates near the current estimate but far back in the sequence,
-verified by an exact branch-and-bound search, refined by Gauss–Newton, accepted by a fitness test.
+verified by an exact branch-and-bound search, refined by Gauss–Newton, accepted by a fitness test and by
+look-alike tests.
 
 Every `submap_nodes` keyframes form a submap: their scans, placed at the nodes' current estimates relative to
-the first node (the anchor), splatted into a likelihood field in the anchor's frame. When a new node's
-estimate lies within `loop_search_radius` of an older submap's centre, its scan is searched over a window of
-±`loop_linear_window` and ±`loop_angular_window_deg` around that estimate (Hess et al. 2016, §V: branch and
-bound on precomputed max grids, exact, so a poor guess inside the window is no problem), refined on a
-sharper field, and accepted when the search score and the share of points within 1σ of the submap both pass.
-The constraint is the node's pose in the anchor's frame (a gtsam BetweenFactorPose2 under a robust kernel).
+the first node (the anchor). A submap keeps only these points (float32); its likelihood fields and search
+pyramid are rebuilt from them when a search needs them and kept in a small LRU cache (`loop_field_cache`), so
+memory stays flat however long the log (the fields are a pure function of the points: same results).
+When a new node's estimate lies within `loop_search_radius` of an older submap's centre, a query is searched
+over a window of ±`loop_linear_window` and ±`loop_angular_window_deg` around that estimate (Hess et al. 2016,
+§V: branch and bound on precomputed max grids, exact, so a poor guess inside the window is no problem),
+refined on a sharper field, and accepted when the search score and the share of points within 1σ of the
+submap both pass, and the match is not a look-alike (backend/ambiguity.py): no distinct second peak nearly as
+good (`loop_peak_ratio`), information in every translational direction (`loop_min_information_ratio`).
+The query is the node's scan, or for a narrow scan (`loop_query`) the scans of the last
+`loop_query_distance` metres of travel stacked in the node's frame by the front end's poses (accurate over
+a few metres): a 70° scan of a corridor wall fits many places, a few metres of corridor with its doors fewer.
+The constraint is the node's pose in a submap member's frame (a gtsam BetweenFactorPose2 under a robust kernel).
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from backend.ambiguity import search_two_peaks, translation_information
 from backend.graph import GraphConfig, PoseGraph
 from backend.keyframes import Keyframe
 from frontend import se2
@@ -24,27 +35,51 @@ from frontend.likelihood import LikelihoodField
 from frontend.matcher import SearchGrids, gauss_newton, inlier_fraction
 from frontend.odometry import voxel_filter
 
+NARROW_COVERAGE = 0.4  # a scan whose returns cover less than this share of 10° bearing sectors (144°) is narrow
+
+
+@dataclass
+class SubmapFields:
+    """What a search needs of a submap, rebuilt from its points: the search and refinement fields, the pyramid."""
+
+    coarse: LikelihoodField
+    fine: LikelihoodField
+    grids: SearchGrids
+    lo: np.ndarray = field(default_factory=lambda: np.zeros(2))  # bounding box of the points (anchor frame)
+    hi: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def inside(self, pts: np.ndarray, pose: np.ndarray) -> float:
+        """Share of the points (scan frame) placed at `pose` that lie within the map's bounding box."""
+        q = se2.transform_points(pose, pts)
+        return float(np.mean(np.all((q >= self.lo) & (q <= self.hi), axis=1))) if len(q) else 0.0
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.coarse.values.nbytes + self.fine.values.nbytes + self.grids.nbytes)
+
 
 @dataclass
 class LoopSubmap:
-    """A finished submap in its anchor node's frame."""
+    """A finished submap in its anchor node's frame: the member scans' points, placed (float32)."""
 
     index: int
     node_ids: list[int]
-    coarse: LikelihoodField
-    fine: LikelihoodField
+    points: np.ndarray  # (N, 2) float32, anchor frame
     centre: np.ndarray  # (2,) mean node position, anchor frame
     member_poses: np.ndarray  # (n, 3) the member nodes' poses in the anchor frame when the submap was built
-    grids: SearchGrids | None = None
 
     @property
     def anchor(self) -> int:
         return self.node_ids[0]
 
+    @property
+    def nbytes(self) -> int:
+        return int(self.points.nbytes + self.member_poses.nbytes + self.centre.nbytes)
+
 
 @dataclass
 class LoopConstraint:
-    """An accepted loop: pose of node `b` in the frame of node `a` (a submap anchor)."""
+    """An accepted loop: pose of node `b` in the frame of node `a` (a submap member)."""
 
     a: int
     b: int
@@ -52,6 +87,8 @@ class LoopConstraint:
     score: float
     inliers: float
     submap: int
+    second: float = 0.0  # best distinct rival's score (0: none above loop_peak_ratio · score)
+    info_ratio: float = float("nan")  # smallest / largest translational information of the match
 
 
 @dataclass
@@ -60,8 +97,23 @@ class LoopStats:
     accepted: int = 0
     rejected_score: int = 0
     rejected_inliers: int = 0
+    rejected_ambiguous: int = 0  # a distinct second peak nearly as good (ratio test)
+    rejected_degenerate: int = 0  # a direction the match does not fix
+    stacked_queries: int = 0
+    skipped_outside: int = 0  # candidates skipped: the narrow query reaches past the candidate map (loop_min_overlap)
     seconds: float = 0.0
-    grid_bytes: int = 0
+    grid_bytes: int = 0  # pyramids built over the run (cumulative)
+    field_builds: int = 0  # submap fields (re)built from points
+    cache_bytes_peak: int = 0  # largest total of the cached fields and pyramids at any time
+    points_bytes: int = 0  # the submaps' kept points
+
+
+def bearing_coverage(points: np.ndarray) -> float:
+    """Share of the 36 10° bearing sectors around the sensor that hold at least one return."""
+    if len(points) == 0:
+        return 0.0
+    b = np.floor((np.arctan2(points[:, 1], points[:, 0]) + math.pi) / (2 * math.pi) * 36).astype(np.int64)
+    return float(len(np.unique(np.clip(b, 0, 35)))) / 36.0
 
 
 class LoopCloser:
@@ -71,35 +123,123 @@ class LoopCloser:
         self.cfg = cfg or GraphConfig()
         self.submaps: list[LoopSubmap] = []
         self.open_nodes: list[int] = []
-        self.points: dict[int, np.ndarray] = {}  # node id → thinned scan points (base_link)
+        self.points: dict[int, np.ndarray] = {}  # node id → thinned scan points (base_link), open submap only
         self.stats = LoopStats()
         self.loops: list[LoopConstraint] = []
         self._centres = np.zeros((0, 3))
         self._anchors = np.zeros(0, np.int64)
+        self._cache: OrderedDict[int, SubmapFields] = OrderedDict()
+        # recent keyframes for stacked queries: (id, front-end pose, thinned points, narrow)
+        self._recent: deque[tuple[int, np.ndarray, np.ndarray, bool]] = deque()
+
+    # ---- settings that may be absent from an older GraphConfig ------------------------------------------------------
+    def _opt(self, name: str, default):
+        return getattr(self.cfg, name, default)
 
     def add_node(self, kf: Keyframe, graph: PoseGraph) -> None:
         """Register a keyframe (after the graph has its node); finish a submap every `submap_nodes` nodes."""
         c = self.cfg
+        for i in [i for i in self.points if i not in self.open_nodes]:
+            del self.points[i]  # the last node of a finished submap: its own search is done
         pts = kf.points
         if len(pts):
             pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= c.loop_search_range]
-        self.points[kf.id] = voxel_filter(pts, c.loop_point_voxel)
+        pts = voxel_filter(pts, c.loop_point_voxel)
+        self.points[kf.id] = pts
+        mode = self._opt("loop_query", "auto")
+        narrow = mode == "stack" or bearing_coverage(kf.points) < NARROW_COVERAGE
+        self._recent.append((kf.id, np.asarray(kf.local_pose, dtype=float), pts, narrow))
+        self._trim_recent()
         self.open_nodes.append(kf.id)
         if len(self.open_nodes) >= c.submap_nodes:
             self._finish(graph)
 
+    def _trim_recent(self) -> None:
+        """Keep the keyframes within loop_query_distance of travel of the newest (front-end poses)."""
+        dist_max = self._opt("loop_query_distance", 0.0)
+        travel = 0.0
+        keep = 1
+        items = list(self._recent)
+        for k in range(len(items) - 1, 0, -1):
+            travel += math.hypot(*(items[k][1][:2] - items[k - 1][1][:2]))
+            if travel > dist_max:
+                break
+            keep += 1
+        while len(self._recent) > keep:
+            self._recent.popleft()
+
+    def query(self, node: int) -> np.ndarray | None:
+        """The points to match for `node`: its scan, or for a narrow scan the recent keyframes' scans stacked in
+        its frame by the front end's poses (ℓ_node⁻¹ ⊕ ℓ_k), thinned to one per loop_point_voxel."""
+        pts = self.points.get(node)
+        if pts is None:
+            return None
+        if (self._opt("loop_query", "auto") == "scan" or not self._recent or self._recent[-1][0] != node
+                or not self._recent[-1][3] or len(self._recent) < 2):
+            return pts
+        here = self._recent[-1][1]
+        stack = [pts]
+        for kid, pose, p, _ in list(self._recent)[:-1]:
+            if len(p):
+                stack.append(se2.transform_points(se2.between(here, pose), p))
+        self.stats.stacked_queries += 1
+        return voxel_filter(np.vstack(stack), self.cfg.loop_point_voxel)
+
     def _finish(self, graph: PoseGraph) -> None:
-        c = self.cfg
         ids = self.open_nodes
         anchor = graph.est[ids[0]]
         rel = se2.between(np.repeat(anchor[None], len(ids), 0), graph.est[ids])
         pts = [se2.transform_points(r, self.points[i]) for r, i in zip(rel, ids) if len(self.points[i])]
-        allp = np.vstack(pts) if pts else np.zeros((0, 2))
+        allp = (np.vstack(pts) if pts else np.zeros((0, 2))).astype(np.float32)
+        sm = LoopSubmap(len(self.submaps), list(ids), allp, rel[:, :2].mean(axis=0), rel)
+        self.submaps.append(sm)
+        self.stats.points_bytes += sm.nbytes
+        self.points = {ids[-1]: self.points[ids[-1]]}  # the others are in the submap (and in _recent for queries)
+        self.open_nodes = []
+
+    def fields(self, sm: LoopSubmap, graph: PoseGraph | None = None, neighbours: int = 0) -> SubmapFields:
+        """The submap's fields and pyramid, from the LRU cache or rebuilt from its points; with `neighbours` > 0
+        the submaps that many before and after it join, placed by the graph's current estimate of their anchors
+        (the map around the candidate: a query near the submap's edge then meets the place it really is, not
+        only the look-alike that lies inside the submap)."""
+        key = (sm.index, neighbours)
+        f = self._cache.get(key)
+        if f is not None:
+            self._cache.move_to_end(key)
+            return f
+        c = self.cfg
+        parts = [sm.points.astype(np.float64)]
+        if neighbours > 0 and graph is not None:
+            last = len(self.submaps) - c.loop_min_separation  # never the query's own recent submaps
+            for j in range(max(0, sm.index - neighbours), min(last, sm.index + neighbours + 1)):
+                if j != sm.index:
+                    o = self.submaps[j]
+                    parts.append(se2.transform_points(se2.between(graph.est[sm.anchor], graph.est[o.anchor]), o.points))
+        allp = np.vstack(parts)
         coarse = LikelihoodField.covering(allp, c.loop_resolution, c.loop_sigma)
         fine = LikelihoodField(coarse.origin, coarse.resolution, coarse.shape[1], coarse.shape[0], c.loop_sigma_fine)
         fine.insert(allp)
-        self.submaps.append(LoopSubmap(len(self.submaps), list(ids), coarse, fine, rel[:, :2].mean(axis=0), rel))
-        self.open_nodes = []
+        w = int(math.ceil(c.loop_linear_window / c.loop_resolution))
+        grids = SearchGrids(coarse, depth=1 + max(1, int(math.ceil(math.log2(w + 1)))))
+        f = SubmapFields(coarse, fine, grids, allp.min(axis=0) if len(allp) else np.zeros(2),
+                         allp.max(axis=0) if len(allp) else np.zeros(2))
+        self.stats.field_builds += 1
+        self.stats.grid_bytes += grids.nbytes
+        self._cache[key] = f
+        while len(self._cache) > max(1, int(self._opt("loop_field_cache", 8))):
+            self._cache.popitem(last=False)
+        self.stats.cache_bytes_peak = max(self.stats.cache_bytes_peak, self.cache_bytes)
+        return f
+
+    @property
+    def cache_bytes(self) -> int:
+        return sum(f.nbytes for f in self._cache.values())
+
+    @property
+    def nbytes(self) -> int:
+        """Memory the loop closer holds now: submap points, cached fields, open scans."""
+        return (sum(sm.nbytes for sm in self.submaps) + self.cache_bytes
+                + sum(p.nbytes for p in self.points.values()))
 
     def candidates(self, node: int, graph: PoseGraph) -> list[LoopSubmap]:
         """Finished submaps, not among the last `loop_min_separation`, whose centre is near the node's estimate."""
@@ -119,55 +259,78 @@ class LoopCloser:
 
     def search(self, node: int, graph: PoseGraph) -> list[LoopConstraint]:
         """Verify every candidate submap for this node; return the accepted constraints (not yet in the graph)."""
-        import time
-
         t0 = time.perf_counter()
-        pts = self.points.get(node)
         found: list[LoopConstraint] = []
+        cands = self.candidates(node, graph)
+        pts = self.query(node) if cands else None
         if pts is None or len(pts) < 10:
+            self.stats.seconds += time.perf_counter() - t0
             return found
-        for sm in self.candidates(node, graph):
+        narrow = bool(self._recent) and self._recent[-1][0] == node and self._recent[-1][3]
+        nb = int(self._opt("loop_map_neighbours", 0)) if narrow else 0
+        for sm in cands:
             guess = se2.between(graph.est[sm.anchor], graph.est[node])
-            lc = self.verify(sm, pts, guess)
+            f = self.fields(sm, graph, nb)
+            if narrow and f.inside(pts, guess) < self._opt("loop_min_overlap", 0.0):
+                # the query reaches past the map it would be matched to: where that map's walls end it cannot
+                # tell a real end from an unseen one, and a slid look-alike scores best (narrow scans only)
+                self.stats.skipped_outside += 1
+                continue
+            lc = self.verify(sm, pts, guess, f, narrow)
             if lc is not None:
                 # Tie the loop to the member whose pose is nearest the match, not to the anchor: the submap is
                 # only as rigid as the front end was while it was built, so the constraint is truest nearby.
-                j = int(np.argmin(np.hypot(*(sm.member_poses[:, :2] - lc[0][:2]).T))) if self.cfg.loop_nearest_member else 0
-                rel = se2.between(sm.member_poses[j], lc[0])
-                found.append(LoopConstraint(sm.node_ids[j], node, rel, lc[1], lc[2], sm.index))
+                pose = lc[0]
+                j = int(np.argmin(np.hypot(*(sm.member_poses[:, :2] - pose[:2]).T))) if self.cfg.loop_nearest_member else 0
+                rel = se2.between(sm.member_poses[j], pose)
+                found.append(LoopConstraint(sm.node_ids[j], node, rel, lc[1], lc[2], sm.index, lc[3], lc[4]))
         self.loops.extend(found)
         self.stats.seconds += time.perf_counter() - t0
         return found
 
-    def verify(self, sm: LoopSubmap, pts: np.ndarray, guess: np.ndarray) -> tuple[np.ndarray, float, float] | None:
-        """Branch and bound around the guess, Gauss–Newton refinement, fitness test → (pose in anchor frame, score, inliers)."""
+    def verify(self, sm: LoopSubmap, pts: np.ndarray, guess: np.ndarray, f: SubmapFields | None = None,
+               narrow: bool = False):
+        """Branch and bound around the guess (best and best distinct rival), Gauss–Newton refinement, fitness and
+        look-alike tests → (pose in anchor frame, score, inliers, rival score, information ratio) or None."""
         c = self.cfg
         self.stats.searches += 1
-        if sm.grids is None:
-            w = int(math.ceil(c.loop_linear_window / c.loop_resolution))
-            sm.grids = SearchGrids(sm.coarse, depth=1 + max(1, int(math.ceil(math.log2(w + 1)))))
-            self.stats.grid_bytes += sm.grids.nbytes
-        pose, score = sm.grids.search(pts, guess, c.loop_linear_window, math.radians(c.loop_angular_window_deg),
-                                      c.loop_min_score)
+        f = f if f is not None else self.fields(sm)
+        # narrow scans only: reject a rival scoring above ratio · best, or fitting less than `misfit` times worse
+        ratio = float(self._opt("loop_peak_ratio", 1.0)) if narrow else 1.0
+        misfit = float(self._opt("loop_peak_misfit", 1.0)) if narrow else 1.0
+        # the rival need only be searched above the lower of the two scores that would reject (exact B&B)
+        pose, score, second = search_two_peaks(f.grids, pts, guess, c.loop_linear_window,
+                                               math.radians(c.loop_angular_window_deg), c.loop_min_score,
+                                               float(self._opt("loop_peak_exclusion", 0.3)), min(ratio, 1.0),
+                                               rival_floor=(lambda best: min(ratio * best, 1.0 - misfit * (1.0 - best))
+                                                            if (ratio < 1.0 or misfit > 1.0) else None))
         if pose is None:
             self.stats.rejected_score += 1
             return None
         pts64 = np.ascontiguousarray(pts, dtype=np.float64)
         W = np.diag([1.0, 1.0, 1.0])
-        co, fi = sm.coarse, sm.fine
+        co, fi = f.coarse, f.fine
         p1, _, _ = gauss_newton(co.values, co.origin[0], co.origin[1], co.resolution, pts64, pose, pose, W, 20)
-        p2, _, _ = gauss_newton(fi.values, fi.origin[0], fi.origin[1], fi.resolution, pts64, p1, p1, W, 20)
+        p2, h, _ = gauss_newton(fi.values, fi.origin[0], fi.origin[1], fi.resolution, pts64, p1, p1, W, 20)
         inl = inlier_fraction(fi.values, fi.origin[0], fi.origin[1], fi.resolution, pts64, p2, math.exp(-0.5))
         if inl < c.loop_min_inliers:
             self.stats.rejected_inliers += 1
             return None
+        if second > 0.0 and ((ratio < 1.0 and second > ratio * score)
+                             or (misfit > 1.0 and (1.0 - second) < misfit * (1.0 - score))):
+            self.stats.rejected_ambiguous += 1
+            return None
+        lo, hi, _ = translation_information(h)
+        info_ratio = lo / hi if hi > 0 else 0.0
+        if info_ratio < float(self._opt("loop_min_information_ratio", 0.0)):
+            self.stats.rejected_degenerate += 1
+            return None
         self.stats.accepted += 1
-        return np.asarray(p2, dtype=float), float(score), float(inl)
+        return np.asarray(p2, dtype=float), float(score), float(inl), float(second), float(info_ratio)
 
     def release(self) -> None:
-        """Drop the search pyramids (memory) once the run is over."""
-        for sm in self.submaps:
-            sm.grids = None
+        """Drop the cached fields and pyramids (memory) once the run is over."""
+        self._cache.clear()
 
 
 @dataclass
