@@ -3,13 +3,20 @@
 Points (plane points from FSPF+, or all valid depth points) are moved into `base_link` with the camera's
 mount, kept when their height lies in a level's band, binned by bearing, and each bin keeps the nearest
 horizontal range. Several cameras accumulate into the same bins. Written by hand (no library bins a
-cloud into several height bands in one pass); the pass is compiled with numba because the height test
-over ~140k points per frame dominates (STACK.md: numpy `minimum.at` 3.7–4.1 ms, numba < 1 ms).
+cloud into several height bands in one pass) and compiled with numba.
+
+Two kernels give the same bins. `KosAccumulator.add` takes N×3 points (any cloud; the reference). The
+pipeline's `KosAccumulator.add_depth` takes the depth image (and FSPF+'s plane pixels) and works from
+per-pixel tables memoised per (camera, mount, bin grid): base_link = d·(column term + row term) + mount
+offset, a branch-free float32 pass over each image row that numba vectorises, then, per block of rows, the
+nearest range of each column per bin and band, so one bin update stands for a whole column of the block
+(docs/bench/kos.md has the numbers).
 """
 
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -148,6 +155,13 @@ def _bearing_table(b: Bearings, centre: float, half_width: float) -> _BearingTab
     return _BearingTable(math.cos(centre), math.sin(centre), t_min, m / (t_max - t_min), first, tan_edges, int(idx[0]))
 
 
+def _view_centre(m: np.ndarray, view_half: float) -> tuple[float, float]:
+    """Bearing of a camera's optical axis in base_link (4×4 mount `m`) and the half width of the bins it can fill:
+    ±10° beyond the view, for points seen near its edge from a camera mounted off base_link's origin."""
+    axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
+    return float(math.atan2(axis[1], axis[0])), float(min(view_half + math.radians(10.0), math.radians(85.0)))
+
+
 @njit(cache=True)
 def _accumulate(pts, R, t, lo, hi, cos_c, sin_c, t_min, scale, first, tan_edges, bin0, n, full_circle, rmin, rmax,
                 out):  # pragma: no cover - compiled
@@ -175,9 +189,10 @@ def _accumulate(pts, R, t, lo, hi, cos_c, sin_c, t_min, scale, first, tan_edges,
         if xc <= 0.0:
             continue
         tt = (y * cos_c - x * sin_c) / xc
-        j = int((tt - t_min) * scale)
-        if j < 0 or j >= m:
+        fj = (tt - t_min) * scale
+        if not (fj >= 0.0 and fj < m):  # (int() truncates towards 0: test before, or bin 0 takes 1/8 bin too much)
             continue
+        j = int(fj)
         k = first[j]
         while k + 1 < n_local and tt >= tan_edges[k + 1]:
             k += 1
@@ -192,6 +207,234 @@ def _accumulate(pts, R, t, lo, hi, cos_c, sin_c, t_min, scale, first, tan_edges,
                 out[lev, b] = r
 
 
+# ---- the image kernel: per-pixel tables, vectorised rows, per-column reduction ------------------------------------
+
+_ROWS = 8  # rows per block: one bin update per column and band stands for up to this many pixels
+_NO_BIN = np.int32(1 << 30)
+_F = np.float32
+# Cephes atanf (S. Moshier): range reduction at tan(3π/8) and tan(π/8), then a degree-9 odd polynomial; ≤ 1.4e-7 rad
+_T3P8, _TP8 = _F(2.414213562373095), _F(0.41421356237309503)
+_PIO2, _PIO4 = _F(math.pi / 2), _F(math.pi / 4)
+_A0, _A1, _A2, _A3 = _F(8.05374449538e-2), _F(-1.38776856032e-1), _F(1.99777106478e-1), _F(-3.33329491539e-1)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _atan2_front(y, x):  # pragma: no cover - compiled
+    """atan2(y, x) for x > 0 in float32, branch-free so that a loop around it vectorises (no SVML here)."""
+    ay = abs(y)
+    big = ay > _T3P8 * x
+    mid = ay > _TP8 * x
+    num = -x if big else (ay - x if mid else ay)
+    den = ay if big else (ay + x if mid else x)
+    t = num / den
+    base = _PIO2 if big else (_PIO4 if mid else _F(0.0))
+    z = t * t
+    a = base + ((((_A0 * z + _A1) * z + _A2) * z + _A3) * z * t + t)
+    return -a if y < 0 else a
+
+
+@njit(cache=True, error_model="numpy")
+def _row_bins(drow, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, zmin, zmax, dmin, dmax, rmin2, rmax2,
+              ks, r2s, zs):  # pragma: no cover - compiled
+    """One image row, branch-free (numba vectorises it): local bin (−1: dropped), squared range and height per pixel.
+
+    The point of pixel (u, v) at depth d in base_link, turned to the view centre, is t + d·(a[u] + b[v]): the
+    column and row terms of the pinhole ray times the mount rotation (thesis eq. 2.1–2.2, then the mount).
+    """
+    for u in range(drow.shape[0]):
+        d = drow[u]
+        z = tz + d * (az[u] + bz)
+        x = tx + d * (ax[u] + bx)
+        y = ty + d * (ay[u] + by)
+        r2 = x * x + y * y
+        fk = (np.float64(_atan2_front(y, x)) - a0) * inv_inc + 0.5
+        ok = ((d > dmin) & (d <= dmax) & (z >= zmin) & (z <= zmax) & (r2 >= rmin2) & (r2 <= rmax2) & (x > 0)
+              & (fk >= 0) & (fk < n_local))
+        ks[u] = np.int32(fk) if ok else np.int32(-1)
+        r2s[u] = r2
+        zs[u] = z
+
+
+@njit(cache=True, error_model="numpy")
+def _column_bins(ks, kmin, kmax):  # pragma: no cover - compiled
+    """Per column of a block: its lowest and highest local bin (kmax −1: nothing in the column)."""
+    for u in range(ks.shape[1]):
+        a = _NO_BIN
+        b = np.int32(-1)
+        for r in range(_ROWS):
+            k = ks[r, u]
+            a = min(a, k if k >= 0 else _NO_BIN)
+            b = max(b, k)
+        kmin[u] = a
+        kmax[u] = b
+
+
+@njit(cache=True, error_model="numpy")
+def _column_band_min(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi):  # pragma: no cover - compiled
+    """Per column of a block, for one band: the nearest squared range among its points in the column's lowest
+    and in its highest bin (vectorised over columns)."""
+    inf = _F(np.inf)
+    for u in range(ks.shape[1]):
+        a = inf
+        b = inf
+        k0 = kmin[u]
+        k1 = kmax[u]
+        for r in range(_ROWS):
+            k = ks[r, u]
+            z = zs[r, u]
+            v = r2s[r, u] if (z >= lo) & (z <= hi) & (k >= 0) else inf
+            a = min(a, v if k == k0 else inf)
+            b = min(b, v if k == k1 else inf)
+        m_lo[u] = a
+        m_hi[u] = b
+
+
+@njit(cache=True, error_model="numpy")
+def _global_bin(k, bin0, n, full_circle):  # pragma: no cover - compiled
+    b = bin0 + k
+    if full_circle:
+        if b >= n:
+            b -= n
+        elif b < 0:
+            b += n
+    return b
+
+
+@njit(cache=True, error_model="numpy")
+def _column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, bin0, n, full_circle, out2):  # pragma: no cover
+    """Nearest range per bin and band: one update per column and bin; columns spread over > 2 bins point by point."""
+    n_band = lo.shape[0]
+    for u in range(ks.shape[1]):
+        k1 = kmax[u]
+        if k1 < 0:
+            continue
+        k0 = kmin[u]
+        if k1 - k0 <= 1:
+            b = _global_bin(k0, bin0, n, full_circle)
+            for j in range(n_band):
+                if m_lo[j, u] < out2[b, j]:
+                    out2[b, j] = m_lo[j, u]
+            if k1 != k0:
+                b = _global_bin(k1, bin0, n, full_circle)
+                for j in range(n_band):
+                    if m_hi[j, u] < out2[b, j]:
+                        out2[b, j] = m_hi[j, u]
+            continue
+        for r in range(_ROWS):
+            k = ks[r, u]
+            if k < 0:
+                continue
+            b = _global_bin(k, bin0, n, full_circle)
+            z = zs[r, u]
+            r2 = r2s[r, u]
+            for j in range(n_band):
+                if z >= lo[j] and z <= hi[j] and r2 < out2[b, j]:
+                    out2[b, j] = r2
+
+
+@njit(cache=True, error_model="numpy")
+def _accumulate_image(depth, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, bin0, n, full_circle, lo, hi,
+                      dmin, dmax, rmin2, rmax2, out2):  # pragma: no cover - compiled
+    """Thesis Alg. 7 over a depth image (0 / NaN pixels dropped): every band at once into out2 (bins × bands, squared
+    ranges), in blocks of _ROWS rows."""
+    h, w = depth.shape
+    n_band = lo.shape[0]
+    ks = np.empty((_ROWS, w), np.int32)
+    r2s = np.empty((_ROWS, w), np.float32)
+    zs = np.empty((_ROWS, w), np.float32)
+    kmin = np.empty(w, np.int32)
+    kmax = np.empty(w, np.int32)
+    m_lo = np.empty((n_band, w), np.float32)
+    m_hi = np.empty((n_band, w), np.float32)
+    zmin = lo.min()
+    zmax = hi.max()
+    for v0 in range(0, h, _ROWS):
+        rows = min(_ROWS, h - v0)
+        for r in range(rows):
+            v = v0 + r
+            _row_bins(depth[v], ax, ay, az, bx[v], by[v], bz[v], tx, ty, tz, a0, inv_inc, n_local, zmin, zmax, dmin, dmax,
+                      rmin2, rmax2, ks[r], r2s[r], zs[r])
+        for r in range(rows, _ROWS):
+            ks[r, :] = -1
+        _column_bins(ks, kmin, kmax)
+        for j in range(n_band):
+            _column_band_min(ks, r2s, zs, lo[j], hi[j], kmin, kmax, m_lo[j], m_hi[j])
+        _column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, bin0, n, full_circle, out2)
+
+
+@njit(cache=True, error_model="numpy")
+def _pixels_image(depth, pixels, out):  # pragma: no cover - compiled
+    """A depth image holding only the given pixels (N×2 row, col; e.g. FSPF+'s plane points), 0 elsewhere."""
+    w = out.shape[1]
+    src = depth.ravel()
+    dst = out.ravel()
+    for i in range(pixels.shape[0]):
+        p = pixels[i, 0] * w + pixels[i, 1]
+        dst[p] = src[p]
+
+
+_SCRATCH = threading.local()
+
+
+def _scratch_image(shape: tuple[int, int]) -> np.ndarray:
+    """A zeroed float32 image, reused per thread: a fresh one costs its page faults (~0.3 ms at 512×424)."""
+    buf = getattr(_SCRATCH, "image", None)
+    if buf is None or buf.shape != shape:
+        buf = _SCRATCH.image = np.zeros(shape, np.float32)
+    else:
+        buf.fill(0.0)
+    return buf
+
+
+@dataclass(frozen=True)
+class _PixelTable:
+    """Per-pixel tables of one camera on one mount for one bin grid (see `_pixel_table`)."""
+
+    ax: np.ndarray  # W float32: column term of the ray in base_link, turned to the view centre
+    ay: np.ndarray
+    az: np.ndarray
+    bx: np.ndarray  # H float32: row term (plus the optical axis)
+    by: np.ndarray
+    bz: np.ndarray
+    t: tuple  # mount offset in the same frame (float32 x, y, z)
+    a0: float  # bearing of local bin 0's centre relative to the view centre
+    n_local: int
+    bin0: int  # global index of local bin 0
+
+
+@lru_cache(maxsize=64)
+def _pixel_table(intrinsics: tuple, translation: tuple, quaternion: tuple, b: Bearings) -> _PixelTable:
+    """Tables for a camera (w, h, fx, fy, cx, cy) on a mount (base_link ← optical: translation, quaternion x y z w).
+
+    The ray of pixel (u, v) is ((u − cx)/fx, (v − cy)/fy, 1); in base_link turned by −centre it is
+    M·ray = (u − cx)/fx·M[:, 0] + ((v − cy)/fy·M[:, 1] + M[:, 2]): a column term plus a row term, so the tables
+    are W + H entries (a full H×W×3 table costs 2.6 MB of memory traffic per frame; measured slower). The bins
+    are those whose centres lie within the view ±10° (as `KosAccumulator._table` chooses for `add`). Memoised:
+    the pipeline makes an accumulator per frame.
+    """
+    w, h, fx, fy, cx, cy = intrinsics
+    mount = Transform("base_link", "optical", np.array(translation), np.array(quaternion))
+    m = mount.matrix()
+    view_half = (math.atan((w - 1 - cx) / fx) + math.atan(cx / fx)) / 2  # as camera_view
+    centre, half_width = _view_centre(m, view_half)
+    c, s = math.cos(centre), math.sin(centre)
+    turn = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
+    rot = turn @ m[:3, :3]
+    col = np.outer((np.arange(w) - cx) / fx, rot[:, 0])
+    row = np.outer((np.arange(h) - cy) / fy, rot[:, 1]) + rot[:, 2]
+    t = turn @ m[:3, 3]
+    if b.full_circle:
+        i0 = int(np.floor((centre - half_width - b.angle_min) / b.angle_increment + 0.5))
+        i1 = int(np.floor((centre + half_width - b.angle_min) / b.angle_increment + 0.5))
+    else:
+        rel = np.angle(np.exp(1j * (b.centres() - centre)))
+        idx = np.flatnonzero(np.abs(rel) <= half_width)
+        i0, i1 = (int(idx[0]), int(idx[-1])) if idx.size else (0, 0)
+    a0 = float(np.angle(np.exp(1j * (b.angle_min + i0 * b.angle_increment - centre))))
+    f = lambda a: np.ascontiguousarray(a, np.float32)  # noqa: E731
+    return _PixelTable(f(col[:, 0]), f(col[:, 1]), f(col[:, 2]), f(row[:, 0]), f(row[:, 1]), f(row[:, 2]),
+                       tuple(np.float32(v) for v in t), a0, i1 - i0 + 1, i0)
+
 class KosAccumulator:
     """Bins the points of one time step (from one or more cameras) into every level at once."""
 
@@ -199,18 +442,25 @@ class KosAccumulator:
         self.names = [b[0] for b in cfg.bands()]
         self.lo = np.array([b[1] for b in cfg.bands()], np.float64)
         self.hi = np.array([b[2] for b in cfg.bands()], np.float64)
+        self._lo32, self._hi32 = self.lo.astype(np.float32), self.hi.astype(np.float32)
         self.bearings = bearings
         self.min_range, self.max_range = float(min_range), float(max_range)
-        self.ranges = np.full((len(self.names), bearings.n), np.inf, np.float32)
+        self._ranges = np.full((len(self.names), bearings.n), np.inf, np.float32)  # `add`: nearest range
+        self._r2 = np.full((bearings.n, len(self.names)), np.inf, np.float32)  # `add_depth`: nearest squared range
+
+    @property
+    def ranges(self) -> np.ndarray:
+        """(bands × bins) float32 nearest horizontal range, +inf empty: levels in config order, then the obstacle scan."""
+        r = np.sqrt(self._r2.T)
+        np.minimum(r, self._ranges, out=r)
+        return r
 
     def reset(self) -> None:
-        self.ranges.fill(np.inf)
+        self._ranges.fill(np.inf)
+        self._r2.fill(np.inf)
 
     def _table(self, m: np.ndarray, view_half: float) -> _BearingTable:
-        axis = m[:3, :3] @ np.array([0.0, 0.0, 1.0])
-        # ±10° beyond the view: points seen near its edge from a camera mounted off base_link's origin
-        half = min(view_half + math.radians(10.0), math.radians(85.0))
-        return _bearing_table(self.bearings, float(math.atan2(axis[1], axis[0])), float(half))
+        return _bearing_table(self.bearings, *_view_centre(m, view_half))
 
     def add(self, points: np.ndarray, mount: Transform, view_half: float = math.radians(40.0)) -> None:
         """Add N×3 points given in the frame `mount` maps into base_link (a camera's optical frame, z forward).
@@ -224,7 +474,36 @@ class KosAccumulator:
         tb = self._table(m, view_half)
         b = self.bearings
         _accumulate(pts, m[:3, :3].copy(), m[:3, 3].copy(), self.lo, self.hi, tb.cos_c, tb.sin_c, tb.t_min, tb.scale,
-                    tb.first, tb.tan_edges, tb.bin0, b.n, b.full_circle, self.min_range, self.max_range, self.ranges)
+                    tb.first, tb.tan_edges, tb.bin0, b.n, b.full_circle, self.min_range, self.max_range, self._ranges)
+
+    def add_depth(self, depth: np.ndarray, camera: CameraModel, mount: Transform, pixels: np.ndarray | None = None,
+                  min_depth: float | None = None, max_depth: float | None = None) -> None:
+        """Add a depth image (metres, H×W; 0 / NaN invalid) seen by `camera` on `mount` (base_link ← optical frame).
+
+        Every pixel with min_depth < d ≤ max_depth (default: the accumulator's range limits) is a point, or only
+        the N×2 (row, col) `pixels` (FSPF+'s `Planes.pixels`). Same bins as `add` on the back-projected points
+        (tests/frontend/test_kos_lut.py), through per-pixel tables memoised per camera, mount and bin grid.
+        """
+        img = np.asarray(depth, np.float32)
+        if img.ndim != 2 or img.shape != (camera.height, camera.width):
+            raise ValueError(f"KOS needs a {camera.height}×{camera.width} depth image, got shape {img.shape}")
+        if pixels is not None:
+            sel = _scratch_image(img.shape)
+            _pixels_image(np.ascontiguousarray(img), np.ascontiguousarray(pixels), sel)
+            img = sel
+        tb = self._pixel_table(camera, mount)
+        dmin = self.min_range if min_depth is None else float(min_depth)
+        dmax = self.max_range if max_depth is None else float(max_depth)
+        b = self.bearings
+        tx, ty, tz = tb.t
+        _accumulate_image(np.ascontiguousarray(img), tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, tx, ty, tz, tb.a0,
+                          1.0 / b.angle_increment, tb.n_local, tb.bin0, b.n, b.full_circle, self._lo32, self._hi32,
+                          _F(dmin), _F(dmax), _F(self.min_range ** 2), _F(self.max_range ** 2), self._r2)
+
+    def _pixel_table(self, camera: CameraModel, mount: Transform) -> _PixelTable:
+        intrinsics = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
+        return _pixel_table(intrinsics, tuple(float(v) for v in mount.translation),
+                            tuple(float(v) for v in mount.rotation), self.bearings)
 
     def scans(self, stamp_ns: int, seen: np.ndarray | None = None, frame_id: str = "base_link",
               topic_prefix: str = "/kinect_scan/") -> dict[str, Scan]:

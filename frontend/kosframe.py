@@ -11,10 +11,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend.camera import DepthConfig, backproject, depth_constraints
+from frontend.camera import DepthConfig, depth_constraints
 from frontend.depthstream import DepthItem
 from frontend.fspf import FspfConfig, filter_planes, frame_seed
-from frontend.kos import Bearings, KosAccumulator, KosConfig, camera_view
+from frontend.kos import Bearings, KosAccumulator, KosConfig
 from frontend.planes import FrameStats, Planes
 
 
@@ -39,20 +39,17 @@ def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos
     t0 = time.perf_counter()
     if kos_cfg.source == "planes":
         planes = filter_planes(item.depth, item.camera, fspf_cfg, depth_cfg, item.mount, frame_seed(fspf_cfg, item.index))
-        points, stats = planes.points, planes.stats
+        pixels, n_points, stats = planes.pixels, len(planes.points), planes.stats
     else:  # every valid depth point, as depthimage_to_laserscan does
         ok = depth_constraints(item.depth, depth_cfg.min_depth, depth_cfg.max_depth)
-        rows, cols = np.nonzero(ok)
-        points = backproject(item.depth, item.camera, rows, cols)
-        planes = None
-        stats = FrameStats(pixels=item.depth.size, ineligible=int(item.depth.size - ok.sum()), inliers=int(ok.sum()))
+        pixels, n_points, planes = None, int(ok.sum()), None
+        stats = FrameStats(pixels=item.depth.size, ineligible=int(item.depth.size - n_points), inliers=n_points)
     t1 = time.perf_counter()
     acc = KosAccumulator(kos_cfg, bearings, depth_cfg.min_depth, depth_cfg.max_depth)
-    lo, hi = camera_view(item.camera, item.mount)
-    acc.add(points, item.mount, (hi - lo) / 2)
+    acc.add_depth(item.depth, item.camera, item.mount, pixels)  # per-pixel tables: no back-projection needed
     t2 = time.perf_counter()
     return KosFrame(item.index, item.stamp_ns, item.topic, acc.ranges, stats, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
-                    len(points), planes if keep_planes else None)
+                    n_points, planes if keep_planes else None)
 
 
 def merge_cameras(frames: list[KosFrame]) -> np.ndarray:
