@@ -218,3 +218,16 @@ def test_no_imu_flag_leaves_the_imu_out(tmp_path, capsys):
     truth = simulation_truth(out)
     assert truth["config"]["imu"] is False and truth["truth"]["imu"] is None
     assert (tmp_path / "noimu.sim.yaml").is_file()
+    # the IMU draws from its own random stream: with it, every other sensor's data is the same
+    both = tmp_path / "imu.mcap"
+    assert main(["simulate", "room", "--out", str(both), "--duration", "1", "--quiet", "--set", "laser=false"]) == 0
+    topics = ["/odom", "/kinect2/sd/image_depth_rect", "/ground_truth/odom"]
+    with open_log(out) as a, open_log(both) as b:
+        ra, rb = list(a.read(topics)), list(b.read(topics))
+    assert len(ra) == len(rb) > 100
+    for x, y in zip(ra, rb):
+        assert x.stamp_ns == y.stamp_ns and x.topic == y.topic
+        if isinstance(x, Odometry):
+            assert (x.x, x.y, x.yaw) == (y.x, y.y, y.yaw)
+        else:
+            assert np.array_equal(x.image, y.image)
