@@ -8,6 +8,7 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from frontend.logs.convert import imu_problem
 from frontend.records import Imu, Record
 
 
@@ -68,8 +69,6 @@ class LogReader(ABC):
     def _usable(self, rec):
         """The record, or None (with one warning per topic) for an IMU sample with non-finite values."""
         if isinstance(rec, Imu):
-            from frontend.logs.convert import imu_problem
-
             why = imu_problem(rec)
             if why is not None:
                 bad = self.__dict__.setdefault("_bad_imu", {})
