@@ -8,7 +8,13 @@ The logs are `kosmap simulate office` with the simulator's default rates (Kinect
 its own process, so its peak resident memory (the main process, and the largest worker) is its own. The 1-minute
 log is also built serially (`--workers 0`), the baseline the parallel run is compared with in the same run.
 Target (issue 8): ≥ 10× real time on 2 cores, memory flat in the log's length. Writes docs/bench/pipeline.json
-and docs/bench/pipeline.md.
+and docs/bench/pipeline.md, with each run's ratio to the same run in the previous pipeline.json.
+
+Wall time depends on what else the machine runs (the load average is recorded beside each run); the CPU seconds
+of the build (main process and workers) per second of log do not, and 2 cores divided by them is the real-time
+factor the build would reach with both cores to itself ("CPU bound").
+
+    --minutes 10 --configs default --merge   # one more run, merged into the existing results
 """
 
 from __future__ import annotations
@@ -59,6 +65,7 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
     from mapping.config import load_config
     from mapping.pipeline import build
 
+    load0 = os.getloadavg()[0]
     t0 = time.perf_counter()
     res = build(log, out, load_config(None, sets), blueprint=blueprint, workers=workers)
     wall = time.perf_counter() - t0
@@ -67,6 +74,7 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
     m = res.metrics
     print(json.dumps({"wall_s": wall, "cpu_main_s": me.ru_utime + me.ru_stime, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
                       "maxrss_main_mb": me.ru_maxrss / 1024, "maxrss_worker_mb": kids.ru_maxrss / 1024,
+                      "load_avg_1min": [load0, os.getloadavg()[0]],
                       "metrics": {k: m[k] for k in ("log", "frames", "timing", "table_5_5", "table_5_2")},
                       "slam": {k: {kk: v.get(kk) for kk in ("scans", "keyframes", "loops", "seconds", "ate")}
                                for k, v in m["slam"].items()},
@@ -106,6 +114,9 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, nargs="+", default=[1.0, 10.0])
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--no-serial", action="store_true", help="skip the serial baseline")
+    ap.add_argument("--configs", nargs="+", default=["default", FAST],
+                    help="configs to run per log: 'default' or --set strings joined by ','")
+    ap.add_argument("--merge", action="store_true", help="keep the other runs of the existing pipeline.json")
     ap.add_argument("--one", nargs=4, metavar=("LOG", "OUT", "WORKERS", "BLUEPRINT"), help=argparse.SUPPRESS)
     ap.add_argument("--set", action="append", default=[], help=argparse.SUPPRESS)
     ap.add_argument("--rewrite", action="store_true", help="rewrite pipeline.md from pipeline.json")
@@ -121,26 +132,56 @@ def main() -> None:
         one(a.one[0], a.one[1], int(a.one[2]), a.one[3], a.set)
         return
     rows = []
+    old = json.loads((OUT / "pipeline.json").read_text()) if (OUT / "pipeline.json").is_file() else {}
+    previous = {_key(r): r for r in old.get("runs", [])}  # the last results, for the ratios
+    previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
     for minutes in a.minutes:
         log, bp = office_log(minutes)
-        runs = [(a.workers, []), (a.workers, [FAST])]
+        runs = [(a.workers, [] if c == "default" else c.split(",")) for c in a.configs]
         if minutes == min(a.minutes) and not a.no_serial:
             runs.insert(1, (0, []))
         for w, sets in runs:
             r = run(log, bp, w, sets)
-            r.update({"minutes": minutes, "workers": w, "sets": sets, "log_gb": log.stat().st_size / 1e9,
-                      "breakdown_cpu_per_log_s": breakdown(r)})
+            r.update({"minutes": minutes, "workers": w, "sets": sets, "log_gb": log.stat().st_size / 1e9})
+            r["breakdown_cpu_per_log_s"] = breakdown(r)
+            prev = previous.get(_key(r))
+            if prev is not None:
+                r["previous"] = {k: prev[k] for k in ("wall_s", "cpu_main_s", "cpu_workers_s", "maxrss_main_mb",
+                                                      "maxrss_worker_mb", "f1") if k in prev}
+                r["previous"]["realtime_factor"] = prev["metrics"]["timing"]["realtime_factor"]
             t = r["metrics"]["timing"]
             print(f"{minutes:g} min, workers {w} {' '.join(sets)}: {r['wall_s']:.0f} s wall, "
                   f"{t['realtime_factor']:.2f}× real time, peak RSS main {r['maxrss_main_mb']:.0f} MB, "
                   f"worker {r['maxrss_worker_mb']:.0f} MB", flush=True)
             rows.append(r)
+    if a.merge:
+        keys = {_key(r) for r in rows}
+        rows = [r for r in old.get("runs", []) if _key(r) not in keys] + rows
+        rows.sort(key=lambda r: (r["minutes"], r["sets"] != [], r["workers"] == 0, r["sets"]))
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO).stdout.strip()
     doc = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
-           "target_realtime_factor": 10.0, "runs": rows}
+           "commit": commit + (" (+ local changes)" if _dirty() else ""),
+           "target_realtime_factor": 10.0, "runs": rows,
+           "previous": {"/".join(map(str, _key(r))): {k: v for k, v in r.items() if k != "previous"}
+                        for r in previous.values()}}
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "pipeline.json").write_text(json.dumps(doc, indent=2) + "\n")
     (OUT / "pipeline.md").write_text(markdown(doc))
     print(f"wrote {OUT / 'pipeline.json'} and {OUT / 'pipeline.md'}")
+
+
+def _dirty() -> bool:
+    p = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], capture_output=True, text=True, cwd=REPO)
+    return bool(p.stdout.strip())
+
+
+def _key(r: dict) -> tuple:
+    return (float(r["minutes"]), int(r["workers"]), ",".join(r["sets"]))
+
+
+def cpu_per_log_s(r: dict) -> float:
+    """CPU seconds of the whole build (main process and workers) per second of log."""
+    return (r["cpu_main_s"] + r["cpu_workers_s"]) / (r["metrics"]["timing"]["log_s"] or 1.0)
 
 
 def markdown(doc: dict) -> str:
@@ -149,19 +190,47 @@ def markdown(doc: dict) -> str:
          "wheel odometry 50 Hz, zstd MCAP), built with the default config (every depth frame through FSPF+ and "
          "three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
          "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",
-         f"Machine: {doc['machine']['cpus']} cores, Python {doc['machine']['python']}.", "",
-         "| log | workers | config | depth frames | wall (s) | real-time factor | frames/s | peak RSS main (MB) | peak RSS worker (MB) |",
-         "|---|---|---|---|---|---|---|---|---|"]
+         f"Machine: {doc['machine']['cpus']} cores, Python {doc['machine']['python']}; code at {doc.get('commit', '?')}.",
+         "", "The machine is shared: the load average (1 min, before and after each build) says how much else ran; "
+         "wall times and the real-time factor suffer from it, the CPU seconds much less. 'CPU bound' is 2 cores "
+         "divided by the build's CPU seconds (main and workers) per second of log.", "",
+         "| log | workers | config | depth frames | wall (s) | real-time factor | previous | ratio | CPU s per log s "
+         "(previous) | CPU bound on 2 cores | load avg | peak RSS main (MB) | peak RSS worker (MB) |",
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     base = {}
     for r in doc["runs"]:
         t = r["metrics"]["timing"]
         fr = r["metrics"]["frames"]["processed"]
+        pv = r.get("previous")
+        cpu = cpu_per_log_s(r)
+        prev_rt = f"{pv['realtime_factor']:.2f}×" if pv else "–"
+        ratio = f"{t['realtime_factor'] / pv['realtime_factor']:.2f}" if pv else "–"
+        prev_cpu = f" ({(pv['cpu_main_s'] + pv['cpu_workers_s']) / t['log_s']:.3f})" if pv else ""
+        load = r.get("load_avg_1min")
         L.append(f"| {r['minutes']:g} min ({t['log_s']:.0f} s, {r['log_gb']:.1f} GB) | {r['workers']} | "
                  f"{' '.join(r['sets']) or 'default'} | {fr} | "
-                 f"{r['wall_s']:.0f} | {t['realtime_factor']:.2f}× | {r['metrics']['table_5_5']['system_hz']:.0f} | "
+                 f"{r['wall_s']:.0f} | {t['realtime_factor']:.2f}× | {prev_rt} | {ratio} | {cpu:.3f}{prev_cpu} | "
+                 f"{2.0 / cpu:.1f}× | {f'{load[0]:.1f}–{load[1]:.1f}' if load else '–'} | "
                  f"{r['maxrss_main_mb']:.0f} | {r['maxrss_worker_mb']:.0f} |")
         if r["workers"] == 0:
             base[r["minutes"]] = r
+    L += ["", "Map quality of the same runs (F1 at 0.10 m; KOS obstacle map on the KOS SLAM's poses and on the "
+          "laser SLAM's poses, laser map, each vs the blueprint; KOS SLAM's ATE vs ground truth):", "",
+          "| log | workers | config | F1 KOS | F1 KOS at laser poses | F1 laser | KOS SLAM ATE (m) | laser SLAM ATE (m) |",
+          "|---|---|---|---|---|---|---|---|"]
+    for r in doc["runs"]:
+        f1, sl = r.get("f1", {}), r.get("slam", {})
+
+        def f(k):
+            return f"{f1[k]:.3f}" if k in f1 else "–"
+
+        def ate(k):
+            a = (sl.get(k) or {}).get("ate")
+            return f"{a['rmse']:.3f}" if a else "–"
+
+        L.append(f"| {r['minutes']:g} min | {r['workers']} | {' '.join(r['sets']) or 'default'} | "
+                 f"{f('kos_obstacle_vs_blueprint')} | {f('kos_obstacle_at_laser_poses_vs_blueprint')} | "
+                 f"{f('laser_vs_blueprint')} | {ate('kos')} | {ate('laser')} |")
     for r in doc["runs"]:
         b = base.get(r["minutes"])
         if b is not None and r["workers"] > 0 and not r["sets"]:
