@@ -282,7 +282,7 @@ def _column_band_min(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi):  # pragma: no
         for r in range(_ROWS):
             k = ks[r, u]
             z = zs[r, u]
-            v = r2s[r, u] if (z >= lo) & (z <= hi) & (k >= 0) else inf
+            v = r2s[r, u] if (z >= lo) & (z <= hi) else inf  # (k = −1, dropped, matches only a column without points)
             a = min(a, v if k == k0 else inf)
             b = min(b, v if k == k1 else inf)
         m_lo[u] = a
@@ -378,13 +378,15 @@ _SCRATCH = threading.local()
 
 
 def _mask(shape: tuple[int, int], pixels: np.ndarray | None) -> np.ndarray:
-    """The pixels to use as a uint8 H×W mask: all (one shared array of ones) or those given (a per-thread buffer,
-    reused: a fresh one costs its page faults)."""
-    key = "all" if pixels is None else "some"
-    buf = getattr(_SCRATCH, key, None)
-    if buf is None or buf.shape != shape:
-        buf = np.ones(shape, np.uint8) if pixels is None else np.zeros(shape, np.uint8)
-        setattr(_SCRATCH, key, buf)
+    """The pixels to use as a uint8 H×W mask: all (a shared array of ones) or those given (a per-thread buffer,
+    reused: a fresh one costs its page faults). One of each per image shape (cameras may differ)."""
+    cache = getattr(_SCRATCH, "masks", None)
+    if cache is None:
+        cache = _SCRATCH.masks = {}
+    key = (pixels is None, tuple(shape))
+    buf = cache.get(key)
+    if buf is None:
+        buf = cache[key] = np.ones(shape, np.uint8) if pixels is None else np.zeros(shape, np.uint8)
     elif pixels is not None:
         buf.fill(0)
     if pixels is not None:
