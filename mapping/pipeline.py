@@ -71,9 +71,11 @@ class SlamFeed:
     one that came at once: serial and parallel runs feed SLAM identical inputs.
     """
 
-    def __init__(self, slam, use_odom: bool) -> None:
+    def __init__(self, slam, use_odom: bool, use_imu: bool = False) -> None:
         self.slam = slam
         self.use_odom = use_odom
+        self.use_imu = use_imu and slam.gcfg.imu  # the log's gyro: scans also wait for its samples (issue #9)
+        slam.expect_imu = self.use_imu
         self.wheel = WheelOdometry()
         self.pending: deque[tuple[int, np.ndarray]] = deque()
         self.added = 0
@@ -81,6 +83,11 @@ class SlamFeed:
 
     def odom(self, rec: Odometry) -> None:
         self.wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
+
+    def imu(self, rec) -> None:
+        """One Imu record: straight to SLAM (its gyro factors wait for the samples by themselves)."""
+        if self.use_imu:
+            self.slam.add_imu(rec)
 
     def push(self, stamp_ns: int, points: np.ndarray) -> None:
         self.pending.append((int(stamp_ns), points))
@@ -90,7 +97,9 @@ class SlamFeed:
         wait = int(ODOM_WAIT_S * 1e9)
         while self.pending:
             stamp, pts = self.pending[0]
-            if self.use_odom and now_ns is not None and not self.wheel.covers(stamp) and now_ns - stamp <= wait:
+            settled = ((not self.use_odom or self.wheel.covers(stamp))
+                       and (not self.use_imu or self.slam.gyro.covers(stamp)))
+            if now_ns is not None and not settled and now_ns - stamp <= wait:
                 return
             self.pending.popleft()
             odom = self._odom_at(stamp) if self.use_odom else None
@@ -320,7 +329,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     from mapping.slam import kos_odometry_config
 
     kos_ocfg: OdometryConfig = kos_odometry_config(cfg)  # the same front end as `kosmap slam --source kos`
-    kos_gcfg = _merged(cfg.graph, bcfg.kos_graph, "kos_graph")
+    from mapping.slam import kos_graph_config
+
+    kos_gcfg = kos_graph_config(cfg)  # the same graph as `kosmap slam --source kos` (KOS_GRAPH, then [build] kos_graph)
 
     out.mkdir(parents=True, exist_ok=True)
     for pattern in OUTPUTS:  # a previous run's outputs must not mix with this run's (nor survive its failure)
@@ -409,8 +420,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     spill = Spill(spill_dir)
     bands = [b[0] for b in cfg.kos.bands()]
     use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
-    kos_feed = SlamFeed(kos_slam, use_odom) if kos_slam is not None else None
-    laser_feed = SlamFeed(laser_slam, use_odom) if laser_slam is not None else None
+    kos_feed = SlamFeed(kos_slam, use_odom, bool(det.imu)) if kos_slam is not None else None
+    laser_feed = SlamFeed(laser_slam, use_odom, bool(det.imu)) if laser_slam is not None else None
     feeds = [f for f in (kos_feed, laser_feed) if f is not None]
     statics: list[Transforms] = []
     gt = array("d")  # t, x, y, yaw flattened
@@ -567,6 +578,9 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                             f.odom(rec)
                 elif isinstance(rec, Transforms) and rec.static:
                     statics.append(rec)
+                elif det.imu and rec.topic == det.imu:
+                    for f in feeds:
+                        f.imu(rec)
                 elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
                     on_laser(rec)
                 if stream is not None:

@@ -1,0 +1,155 @@
+"""Gyro integration (backend/imu.py) and the gyro / odometry-scale factors of the pose graph (backend/graph.py)."""
+
+from __future__ import annotations
+
+import math
+
+import gtsam
+import numpy as np
+import pytest
+
+from backend.graph import BIAS_KEY, SCALE_KEY, GraphConfig, PoseGraph, _gyro_error, _scale_error
+from backend.imu import GyroBuffer, yaw_sigma
+from frontend import se2
+
+T0 = 1_700_000_000_000_000_000
+
+
+def _buffer(rate_fn, t_end=5.0, hz=200.0, **kw) -> GyroBuffer:
+    g = GyroBuffer(**kw)
+    for t in np.arange(0.0, t_end, 1.0 / hz):
+        g.add(T0 + int(round(t * 1e9)), rate_fn(t))
+    return g
+
+
+def test_constant_and_linear_rate_integrate_exactly():
+    g = _buffer(lambda t: 0.3, stuck_s=1e6)  # a noiseless constant rate would otherwise look stuck
+    a, b = T0 + 123_456_789, T0 + 3_210_987_654  # between samples at both ends
+    inc = g.integrate(a, b)
+    assert inc.ok and inc.dyaw == pytest.approx(0.3 * (b - a) * 1e-9, abs=1e-12)
+    g = _buffer(lambda t: 0.1 + 0.2 * t)  # the trapezoid rule is exact for a rate linear in time
+    ta, tb = 0.123456789, 3.210987654
+    exact = 0.1 * (tb - ta) + 0.1 * (tb ** 2 - ta ** 2)
+    assert g.integrate(T0 + 123_456_789, T0 + 3_210_987_654).dyaw == pytest.approx(exact, abs=1e-9)
+    assert g.integrate(T0 + 10**9, T0 + 10**9).dyaw == 0.0
+
+
+def test_uncovered_gap_and_stuck_intervals_give_no_increment():
+    rng = np.random.default_rng(0)
+    g = GyroBuffer(max_gap_s=0.1, stuck_s=1.0)
+    for t in np.arange(0.0, 10.0, 0.005):
+        if 3.0 <= t < 3.5:
+            continue  # a 0.5 s gap
+        w = 0.25 if 6.0 <= t < 7.5 else 0.2 + 0.001 * rng.standard_normal()  # stuck for 1.5 s
+        g.add(T0 + int(round(t * 1e9)), w)
+    s = lambda t: T0 + int(t * 1e9)  # noqa: E731
+    assert g.integrate(s(1.0), s(2.0)).ok
+    assert g.integrate(s(2.9), s(3.6)).reason == "gap"
+    assert g.integrate(s(6.5), s(6.8)).reason == "stuck"
+    assert g.integrate(s(5.0), s(6.2)).reason == "stuck"  # overlaps the stuck run
+    assert g.integrate(s(8.0), s(9.0)).ok
+    assert g.integrate(s(9.0), s(11.0)).reason == "uncovered"
+    assert len(g.stuck) == 1 and g.stuck[0][1] - g.stuck[0][0] >= 1.4e9
+    g.add(s(1.0), 0.0)  # out of order: dropped, counted
+    assert g.dropped == 1
+
+
+def test_yaw_sigma():
+    # white noise 0.01 °/s/√Hz over 4 s: 0.02°; the bias term 0.05 °/s × 4 s = 0.2°
+    assert math.degrees(yaw_sigma(4.0, math.radians(0.01), 0.0, 0.0)) == pytest.approx(0.02)
+    assert math.degrees(yaw_sigma(4.0, 0.0, math.radians(0.05), 0.0)) == pytest.approx(0.2)
+
+
+@pytest.mark.parametrize("which", ["scale", "gyro"])
+def test_custom_factor_jacobians_match_numeric(which):
+    v = gtsam.Values()
+    v.insert(0, gtsam.Pose2(1.0, 2.0, 0.5))
+    v.insert(1, gtsam.Pose2(1.2, 2.3, 0.9))
+    key = SCALE_KEY if which == "scale" else BIAS_KEY
+    v.insert(key, np.array([1.02 if which == "scale" else 0.001]))
+    f = (gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(3), [0, 1, key], _scale_error(np.array([0.3, 0.05, 0.2])))
+         if which == "scale" else gtsam.CustomFactor(gtsam.noiseModel.Unit.Create(1), [0, 1, key], _gyro_error(0.35, 2.0)))
+    A, _ = f.linearize(v).jacobian()
+    e0 = f.unwhitenedError(v)
+    J = np.zeros_like(A)
+    eps = 1e-6
+    for k, kk in enumerate((0, 1)):
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = eps
+            v2 = gtsam.Values(v)
+            v2.update(kk, v.atPose2(kk).retract(d))
+            J[:, 3 * k + j] = (f.unwhitenedError(v2) - e0) / eps
+    v2 = gtsam.Values(v)
+    v2.update(key, v.atVector(key) + eps)
+    J[:, 6] = (f.unwhitenedError(v2) - e0) / eps
+    assert np.abs(A - J).max() < 1e-5
+
+
+def corridor_loop(seed: int = 0, laps: int = 2, scale: float = 1.03, bias_deg_s: float = 0.02):
+    """A 30 × 10 m corridor loop driven `laps` times at 0.5 m/s, one node per 0.2 s: truth; wheel odometry
+    (translation × `scale`, yaw 1 °/√m noise + 0.1 °/m bias); a narrow-scan front end (across-track and yaw
+    good, along-track blind except near the corridor ends); a gyro (0.005 °/s/√Hz, constant bias); loops
+    between laps at the corners. Returns the truth and a function building and solving the graph."""
+    rng = np.random.default_rng(seed)
+    corners = [(0, 0), (30, 0), (30, 10), (0, 10)]
+    poses = []
+    for _ in range(laps):
+        for k in range(4):
+            (x0, y0), (x1, y1) = corners[k], corners[(k + 1) % 4]
+            th = math.atan2(y1 - y0, x1 - x0)
+            n = int(round(math.hypot(x1 - x0, y1 - y0) / 0.1))
+            poses += [(x0 + (x1 - x0) * i / n, y0 + (y1 - y0) * i / n, th) for i in range(n)]
+            poses += [(x1, y1, th + (math.pi / 2) * i / 9) for i in range(1, 9)]  # turn in place, 10° steps
+    truth = np.array(poses)
+    truth[:, 2] = se2.wrap(truth[:, 2])
+    dt = 0.2
+    rel = [se2.between(a, b) for a, b in zip(truth[:-1], truth[1:])]
+    odo, match, gyro = [], [], []
+    bias = math.radians(bias_deg_s)
+    for i, d in enumerate(rel):
+        dist = math.hypot(d[0], d[1])
+        odo.append(np.array([d[0] * scale + rng.normal(0, 0.005 * math.sqrt(dist)), d[1] * scale,
+                             d[2] + math.radians(0.1) * dist + rng.normal(0, math.radians(1.0) * math.sqrt(dist + 1e-4))]))
+        p = truth[i + 1]
+        near_end = min(abs(p[0] - c[0]) + abs(p[1] - c[1]) for c in corners) < 4.5  # a wall ahead within reach
+        s_along = 0.002 if near_end else 1.0
+        sig = np.array([s_along, 0.005, math.radians(0.3)])
+        match.append((d + rng.normal(0, np.minimum(sig, 0.05)), np.diag(sig ** 2)))
+        gyro.append(d[2] + bias * dt + rng.normal(0, math.radians(0.005) * math.sqrt(dt)))
+    per_lap = len(truth) // laps
+    loops = [(i, i + per_lap) for i in range(0, per_lap, 25) if i + per_lap < len(truth)]
+
+    def solve(use_gyro: bool, **cfg) -> tuple[np.ndarray, PoseGraph]:
+        g = PoseGraph(GraphConfig(**{"odom_sigma_xy": 0.002, "odom_sigma_xy_per_m": 0.01, **cfg}))  # honest wheels
+        g.add_node(truth[0])
+        for i, d in enumerate(rel):
+            g.add_node(se2.compose(g.est[i], odo[i]))
+            g.add_match(i, i + 1, match[i][0], cov=match[i][1])
+            g.add_odometry(i, i + 1, odo[i])
+            if use_gyro:
+                g.add_gyro(i, i + 1, gyro[i], dt, odo[i][:2])
+        for a, b in loops:
+            g.add_loop(a, b, se2.between(truth[a], truth[b]) + rng.normal(0, [0.02, 0.02, 0.003]))
+        g.optimize()
+        return g.est.copy(), g
+
+    return truth, solve
+
+
+def _ate(est, truth):
+    return float(np.sqrt(np.mean(np.sum((est[:, :2] - truth[:, :2]) ** 2, axis=1))))
+
+
+def test_corridor_loop_gyro_beats_without_and_scale_is_recovered():
+    truth, solve = corridor_loop(seed=0)
+    est_no, g_no = solve(False)
+    est_gy, g_gy = solve(True)
+    est_fixed, _ = solve(True, odom_scale="fixed", gyro_bias="fixed")
+    a_no, a_gy, a_fixed = _ate(est_no, truth), _ate(est_gy, truth), _ate(est_fixed, truth)
+    assert a_gy < 0.5 * a_no, (a_gy, a_no)
+    assert a_gy < a_fixed, (a_gy, a_fixed)  # estimating the scale and the bias pays
+    assert a_gy <= 0.10, a_gy
+    assert abs(g_gy.odom_scale - 1.03) <= 0.002, g_gy.odom_scale  # the injected 3 % within 0.2 %
+    assert math.degrees(g_gy.gyro_bias) == pytest.approx(0.02, abs=0.01)
+    assert math.degrees(g_no.gyro_bias) == 0.0  # no gyro factors: no bias variable
