@@ -85,3 +85,19 @@ def test_pixel_tables_are_memoised_and_checked():
     assert _pixel_table.cache_info().currsize >= 1
     with pytest.raises(ValueError, match="424"):
         acc.add_depth(np.zeros((10, 10), np.float32), CAM, camera_mount())
+
+
+def test_pixels_outside_the_image_are_ignored():
+    depth, mount, _ = frame((1.2, 1.4, 0.3), camera_mount(), 4)
+    b = bearings_for([(CAM, mount)])
+    rows, cols = np.nonzero(depth_constraints(depth, DEPTH.min_depth, DEPTH.max_depth))
+    pixels = np.column_stack((rows, cols)).astype(np.int32)
+    bad = np.array([[CAM.height + 5, 10], [-1, 3], [-7, -7]], np.int32)
+    a = KosAccumulator(KosConfig(), b, DEPTH.min_depth, DEPTH.max_depth)
+    a.add_depth(depth, CAM, mount, pixels)
+    c = KosAccumulator(KosConfig(), b, DEPTH.min_depth, DEPTH.max_depth)
+    c.add_depth(depth, CAM, mount, np.concatenate((bad, pixels, bad)))
+    np.testing.assert_array_equal(a.ranges, c.ranges)
+    d = KosAccumulator(KosConfig(), b, DEPTH.min_depth, DEPTH.max_depth)
+    d.add_depth(depth, CAM, mount)  # all valid pixels = the same as listing them
+    np.testing.assert_array_equal(a.ranges, d.ranges)
