@@ -120,12 +120,12 @@ def branch_and_bound_excluding(pyr, cells, wx, wy, min_score, er, ex, ey, rad_xy
 
 
 def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_window: float, min_score: float,
-                     exclude_radius: float, ratio: float, max_range: float = 10.0, rival_floor=None):
-    """The best pose (as SearchGrids.search) and the best score at least `exclude_radius` metres away from it
-    (any rotation), searched only above `ratio`·best, or above `rival_floor(best)` when given (the search need
-    only tell whether a rival reaches the score that would reject the match; None: no rival search).
+                     exclude_radius: float, rival_floor=None, max_range: float = 10.0):
+    """The best pose (as frontend.matcher.SearchGrids.search) and the best score at least `exclude_radius`
+    metres away from it (any rotation). The rival is searched only above `rival_floor(best)`, the score that
+    would reject the match (the smaller the window of scores, the more the search prunes); None: no rival search.
 
-    Returns (pose or None, best score, second score or 0.0 when no rival beats that floor)."""
+    Returns (pose or None, best score, rival score or 0.0 when none beats the floor)."""
     from frontend.matcher import rotated_cells
 
     f = grids.field
@@ -134,7 +134,7 @@ def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_w
     if len(pts) == 0:
         return None, 0.0, 0.0
     dmax = min(float(np.sqrt((pts ** 2).sum(axis=1)).max()), max_range)
-    ang_step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(dmax, res) ** 2)))
+    ang_step = math.acos(max(-1.0, 1.0 - res * res / (2.0 * max(dmax, res) ** 2)))  # Hess et al. 2016, eq. 7
     na = int(math.ceil(ang_window / ang_step))
     angles = center[2] + np.arange(-na, na + 1) * ang_step
     cells = rotated_cells(pts, float(center[0]), float(center[1]), angles, f.origin[0], f.origin[1], res)
@@ -144,7 +144,7 @@ def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_w
         return None, float(best), 0.0
     pose = np.array([center[0] + dx * res, center[1] + dy * res, angles[r]])
     pose[2] = (pose[2] + np.pi) % (2 * np.pi) - np.pi
-    floor = ratio * best if rival_floor is None else rival_floor(best)
+    floor = None if rival_floor is None else rival_floor(best)
     if floor is None or floor >= best:
         return pose, float(best), 0.0
     rad = int(math.ceil(exclude_radius / res))

@@ -128,13 +128,9 @@ class LoopCloser:
         self.loops: list[LoopConstraint] = []
         self._centres = np.zeros((0, 3))
         self._anchors = np.zeros(0, np.int64)
-        self._cache: OrderedDict[int, SubmapFields] = OrderedDict()
+        self._cache: OrderedDict[tuple[int, int], SubmapFields] = OrderedDict()  # (submap, neighbours) → fields
         # recent keyframes for stacked queries: (id, front-end pose, thinned points, narrow)
         self._recent: deque[tuple[int, np.ndarray, np.ndarray, bool]] = deque()
-
-    # ---- settings that may be absent from an older GraphConfig ------------------------------------------------------
-    def _opt(self, name: str, default):
-        return getattr(self.cfg, name, default)
 
     def add_node(self, kf: Keyframe, graph: PoseGraph) -> None:
         """Register a keyframe (after the graph has its node); finish a submap every `submap_nodes` nodes."""
@@ -146,8 +142,7 @@ class LoopCloser:
             pts = pts[np.hypot(pts[:, 0], pts[:, 1]) <= c.loop_search_range]
         pts = voxel_filter(pts, c.loop_point_voxel)
         self.points[kf.id] = pts
-        mode = self._opt("loop_query", "auto")
-        narrow = mode == "stack" or bearing_coverage(kf.points) < NARROW_COVERAGE
+        narrow = c.loop_query == "stack" or bearing_coverage(kf.points) < NARROW_COVERAGE
         self._recent.append((kf.id, np.asarray(kf.local_pose, dtype=float), pts, narrow))
         self._trim_recent()
         self.open_nodes.append(kf.id)
@@ -156,7 +151,7 @@ class LoopCloser:
 
     def _trim_recent(self) -> None:
         """Keep the keyframes within loop_query_distance of travel of the newest (front-end poses)."""
-        dist_max = self._opt("loop_query_distance", 0.0)
+        dist_max = self.cfg.loop_query_distance
         travel = 0.0
         keep = 1
         items = list(self._recent)
@@ -174,12 +169,12 @@ class LoopCloser:
         pts = self.points.get(node)
         if pts is None:
             return None
-        if (self._opt("loop_query", "auto") == "scan" or not self._recent or self._recent[-1][0] != node
+        if (self.cfg.loop_query == "scan" or not self._recent or self._recent[-1][0] != node
                 or not self._recent[-1][3] or len(self._recent) < 2):
             return pts
         here = self._recent[-1][1]
         stack = [pts]
-        for kid, pose, p, _ in list(self._recent)[:-1]:
+        for _, pose, p, _ in list(self._recent)[:-1]:
             if len(p):
                 stack.append(se2.transform_points(se2.between(here, pose), p))
         self.stats.stacked_queries += 1
@@ -201,7 +196,8 @@ class LoopCloser:
         """The submap's fields and pyramid, from the LRU cache or rebuilt from its points; with `neighbours` > 0
         the submaps that many before and after it join, placed by the graph's current estimate of their anchors
         (the map around the candidate: a query near the submap's edge then meets the place it really is, not
-        only the look-alike that lies inside the submap)."""
+        only the look-alike that lies inside the submap). A cached union keeps the placement it was built with;
+        loops bend the old stretch little between neighbouring anchors."""
         key = (sm.index, neighbours)
         f = self._cache.get(key)
         if f is not None:
@@ -226,7 +222,7 @@ class LoopCloser:
         self.stats.field_builds += 1
         self.stats.grid_bytes += grids.nbytes
         self._cache[key] = f
-        while len(self._cache) > max(1, int(self._opt("loop_field_cache", 8))):
+        while len(self._cache) > max(1, int(self.cfg.loop_field_cache)):
             self._cache.popitem(last=False)
         self.stats.cache_bytes_peak = max(self.stats.cache_bytes_peak, self.cache_bytes)
         return f
@@ -267,11 +263,11 @@ class LoopCloser:
             self.stats.seconds += time.perf_counter() - t0
             return found
         narrow = bool(self._recent) and self._recent[-1][0] == node and self._recent[-1][3]
-        nb = int(self._opt("loop_map_neighbours", 0)) if narrow else 0
+        nb = int(self.cfg.loop_map_neighbours) if narrow else 0
         for sm in cands:
             guess = se2.between(graph.est[sm.anchor], graph.est[node])
             f = self.fields(sm, graph, nb)
-            if narrow and f.inside(pts, guess) < self._opt("loop_min_overlap", 0.0):
+            if narrow and f.inside(pts, guess) < self.cfg.loop_min_overlap:
                 # the query reaches past the map it would be matched to: where that map's walls end it cannot
                 # tell a real end from an unseen one, and a slid look-alike scores best (narrow scans only)
                 self.stats.skipped_outside += 1
@@ -296,14 +292,13 @@ class LoopCloser:
         self.stats.searches += 1
         f = f if f is not None else self.fields(sm)
         # narrow scans only: reject a rival scoring above ratio · best, or fitting less than `misfit` times worse
-        ratio = float(self._opt("loop_peak_ratio", 1.0)) if narrow else 1.0
-        misfit = float(self._opt("loop_peak_misfit", 1.0)) if narrow else 1.0
-        # the rival need only be searched above the lower of the two scores that would reject (exact B&B)
+        # (misfit = 1 − score); the rival need only be searched above the lower of the two scores that reject
+        ratio = c.loop_peak_ratio if narrow else 1.0
+        misfit = c.loop_peak_misfit if narrow else 1.0
+        floor = (lambda best: min(ratio * best, 1.0 - misfit * (1.0 - best))) if (ratio < 1.0 or misfit > 1.0) else None
         pose, score, second = search_two_peaks(f.grids, pts, guess, c.loop_linear_window,
                                                math.radians(c.loop_angular_window_deg), c.loop_min_score,
-                                               float(self._opt("loop_peak_exclusion", 0.3)), min(ratio, 1.0),
-                                               rival_floor=(lambda best: min(ratio * best, 1.0 - misfit * (1.0 - best))
-                                                            if (ratio < 1.0 or misfit > 1.0) else None))
+                                               c.loop_peak_exclusion, floor)
         if pose is None:
             self.stats.rejected_score += 1
             return None
@@ -322,7 +317,7 @@ class LoopCloser:
             return None
         lo, hi, _ = translation_information(h)
         info_ratio = lo / hi if hi > 0 else 0.0
-        if info_ratio < float(self._opt("loop_min_information_ratio", 0.0)):
+        if info_ratio < c.loop_min_information_ratio:
             self.stats.rejected_degenerate += 1
             return None
         self.stats.accepted += 1
