@@ -90,6 +90,55 @@ def run(log: Path, bp: Path, workers: int, sets: list[str]) -> dict:
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+# (label, how to find the function in the profile: file suffix, name), per stage of a serial build
+STAGES = [
+    ("read: MCAP chunks, zstd, CDR decode (mcap.py read)", "frontend/logs/mcap.py", "read"),
+    ("  of which zstd decompression", "", "<method 'decompress' of 'zstandard.backend_c.ZstdDecompressor' objects>"),
+    ("  of which CDR decode to records (mcap.py _decode)", "frontend/logs/mcap.py", "_decode"),
+    ("frame stage (kos_frame)", "frontend/kosframe.py", "kos_frame"),
+    ("  FSPF+ (filter_planes)", "frontend/fspf.py", "filter_planes"),
+    ("  KOS (KosAccumulator.add_depth)", "frontend/kos.py", "add_depth"),
+    ("  depth to metres", "mapping/framepool.py", "in_meters"),
+    ("steps: merge cameras, KOS scans (KosStream._finish)", "mapping/kosscan.py", "_finish"),
+    ("spill and fused scan (on_step)", "mapping/pipeline.py", "on_step"),
+    ("stats.csv, plane clouds (on_frame)", "mapping/pipeline.py", "on_frame"),
+    ("SLAM, both: scans in (Slam.add_scan)", "mapping/slam.py", "add_scan"),
+    ("SLAM, both: final solve (Slam.finish)", "mapping/slam.py", "finish"),
+    ("pass 1 in all", "mapping/pipeline.py", "_pass1"),
+    ("pass 2: grids (_grid_job)", "mapping/pipeline.py", "_grid_job"),
+    ("pass 2: Foxglove MCAP (_write_mcap less the grids)", "mapping/pipeline.py", "_write_mcap"),
+    ("comparisons (_compare_job)", "mapping/pipeline.py", "_compare_job"),
+    ("metrics", "mapping/pipeline.py", "_metrics"),
+    ("report (write_report)", "mapping/report.py", "write_report"),
+]
+
+
+def account(log: str, out: str, blueprint: str, sets: list[str]) -> None:
+    """Child mode: one serial build under cProfile with a CPU clock; CPU seconds per stage as JSON. Profiling
+    slows Python code more than compiled kernels, so the shares are approximate."""
+    import cProfile
+    import pstats
+
+    from mapping.config import load_config
+    from mapping.pipeline import build
+
+    pr = cProfile.Profile(time.process_time)
+    c0 = time.process_time()
+    pr.enable()
+    res = build(log, out, load_config(None, sets), blueprint=blueprint, workers=0)
+    pr.disable()
+    total = time.process_time() - c0
+    st = pstats.Stats(pr).stats
+
+    def cum(suffix: str, name: str, tot: bool = False) -> float:
+        return sum(v[2] if tot else v[3] for k, v in st.items() if k[2] == name and k[0].endswith(suffix))
+
+    rows = {label: cum(f, n, tot=not f) for label, f, n in STAGES}
+    rows["pass 2: Foxglove MCAP (_write_mcap less the grids)"] -= rows["pass 2: grids (_grid_job)"]  # serial: inside
+    print(json.dumps({"sets": sets, "log_s": res.metrics["timing"]["log_s"], "cpu_profiled_s": total,
+                      "frames": res.metrics["frames"]["processed"], "stages_cpu_s": rows}))
+
+
 def breakdown(r: dict) -> dict:
     """CPU seconds per second of log, by stage."""
     m = r["metrics"]
@@ -120,6 +169,9 @@ def main() -> None:
     ap.add_argument("--one", nargs=4, metavar=("LOG", "OUT", "WORKERS", "BLUEPRINT"), help=argparse.SUPPRESS)
     ap.add_argument("--set", action="append", default=[], help=argparse.SUPPRESS)
     ap.add_argument("--rewrite", action="store_true", help="rewrite pipeline.md from pipeline.json")
+    ap.add_argument("--account", action="store_true",
+                    help="profile one serial build of the 1-minute log per config (--configs), into pipeline.json")
+    ap.add_argument("--account-one", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.rewrite:
         doc = json.loads((OUT / "pipeline.json").read_text())
@@ -130,6 +182,24 @@ def main() -> None:
         return
     if a.one:
         one(a.one[0], a.one[1], int(a.one[2]), a.one[3], a.set)
+        return
+    if a.account_one:
+        account(*a.account_one, a.set)
+        return
+    if a.account:
+        doc = json.loads((OUT / "pipeline.json").read_text())
+        log, bp = office_log(min(a.minutes))
+        doc["accounting"] = []
+        for c in a.configs:
+            sets = [] if c == "default" else c.split(",")
+            p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--account-one", str(log),
+                                str(CACHE / f"out_{log.stem}_profile"), str(bp)] + [f"--set={x}" for x in sets],
+                               capture_output=True, text=True, cwd=REPO)
+            if p.returncode != 0:
+                raise SystemExit(f"profiled build failed:\n{p.stderr[-3000:]}")
+            doc["accounting"].append(json.loads(p.stdout.strip().splitlines()[-1]))
+        (OUT / "pipeline.json").write_text(json.dumps(doc, indent=2) + "\n")
+        (OUT / "pipeline.md").write_text(markdown(doc))
         return
     rows = []
     old = json.loads((OUT / "pipeline.json").read_text()) if (OUT / "pipeline.json").is_file() else {}
@@ -251,6 +321,16 @@ def markdown(doc: dict) -> str:
                  f"{b['read_decode_spill']:.3f} | {b['slam_kos']:.3f} | {b['slam_laser']:.3f} | "
                  f"{2.0 / max(1e-9, sum(b[k] for k in ('fspf_plus', 'kos', 'read_decode_spill', 'slam_kos', 'slam_laser'))):.1f}× | "
                  f"{b['maps_and_mcap_wall']:.3f} | {b['compare_wall']:.3f} | {b['report_wall']:.3f} |")
+    acc = doc.get("accounting") or []
+    if acc:
+        L += ["", "Every CPU second of a serial build of the 1-minute log, by stage (`--account`: cProfile with a CPU "
+              "clock, which slows Python code more than the compiled kernels, so Python-heavy rows are somewhat "
+              "overstated); CPU seconds per second of log:", "",
+              "| stage | " + " | ".join(" ".join(x["sets"]) or "default" for x in acc) + " |",
+              "|---|" + "---|" * len(acc)]
+        for label, _, _ in STAGES:
+            L.append(f"| {label} | " + " | ".join(f"{x['stages_cpu_s'].get(label, 0.0) / x['log_s']:.3f}" for x in acc) + " |")
+        L.append("| all (profiled) | " + " | ".join(f"{x['cpu_profiled_s'] / x['log_s']:.3f}" for x in acc) + " |")
     L += ["", "10× real time on 2 cores leaves 0.2 CPU seconds per second of log for everything.", "",
           "Memory: the pipeline keeps no frames and no scans (the per-step scans go to a temporary file, read back "
           "in chunks); at most `[build] in_flight` frames (3 per worker) are queued. What still grows with the log "
