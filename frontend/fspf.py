@@ -958,11 +958,26 @@ def _prepare(depth_m, cam: CameraModel):
     return depth
 
 
+_AXES: dict[bytes | None, tuple] = {}
+
+
+def _axes(mount: Transform | None) -> tuple:
+    """camera_axes, remembered per mount rotation (a frame's mount arrives as a new object in a worker; the
+    numpy of camera_axes cost ~0.1 ms a frame)."""
+    key = None if mount is None else np.asarray(mount.rotation, np.float64).tobytes()
+    axes = _AXES.get(key)
+    if axes is None:
+        if len(_AXES) > 64:
+            _AXES.clear()
+        axes = _AXES[key] = camera_axes(mount)
+    return axes
+
+
 class _Classes:
     """Plane classes for one camera: gravity axes and height from the mount, bounds from the config."""
 
     def __init__(self, cfg: FspfConfig, mount: Transform | None) -> None:
-        self.up, self.fwd, self.left = camera_axes(mount)
+        self.up, self.fwd, self.left = _axes(mount)
         self.cam_h = float(mount.translation[2]) if mount is not None else float("nan")
         self.cfg = cfg
 
