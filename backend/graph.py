@@ -287,10 +287,13 @@ class PoseGraph:
         # 1. every factor as added (scale 1, bias in the gyro σ): gtsam's own optimizer, in C++
         before = self.all_factors.error(vals)
         known = [i for i, e in enumerate(self.edges) if e.kind != "loop"]
+        outliers: set[int] = set()
         if self.cfg.robust_kernel == "gnc":
             params = gtsam.GncLMParams()
             params.setKnownInliers(known)
-            result = gtsam.GncLMOptimizer(self.all_factors, vals, params).optimize()
+            gnc = gtsam.GncLMOptimizer(self.all_factors, vals, params)
+            result = gnc.optimize()
+            outliers = {i for i, w in enumerate(np.asarray(gnc.getWeights())) if w < 0.5}  # loops GNC rejected
         else:
             params = gtsam.LevenbergMarquardtParams()
             params.setMaxIterations(max_iterations)
@@ -299,7 +302,7 @@ class PoseGraph:
         # 2. with the odometry scale and the gyro bias as variables (Python CustomFactors): damped Gauss–Newton from
         # there. gtsam's optimizers call Python factors ~15× slower than linearize() + optimize() do (measured:
         # 5.7 s vs 0.35 s per iteration on 1664 nodes), so the loop is ours.
-        full, _ = self._batch_graph(result)
+        full, _ = self._batch_graph(result, outliers)
         if full is not self.all_factors:
             graph = full
             result = _gauss_newton(full, result, max_iterations=20)
@@ -326,7 +329,7 @@ class PoseGraph:
         if res.exists(BIAS_KEY):
             self.gyro_bias = float(res.atVector(BIAS_KEY)[0])
 
-    def _batch_graph(self, vals) -> tuple:
+    def _batch_graph(self, vals, outliers: set[int] = frozenset()) -> tuple:
         """Every factor for the final solve: odometry factors with the scale variable and gyro factors with the bias
         variable (gtsam CustomFactor) when those are estimated; their priors; and the non-loop factor indices."""
         c = self.cfg
@@ -336,7 +339,9 @@ class PoseGraph:
         if not (scale or bias):
             return self.all_factors, known
         g = gtsam.NonlinearFactorGraph()
-        for e, f in zip(self.edges, self.factors):
+        for i, (e, f) in enumerate(zip(self.edges, self.factors)):
+            if i in outliers:
+                continue
             if scale and e.kind == "odom":
                 g.add(gtsam.CustomFactor(gtsam.noiseModel.Diagonal.Sigmas(e.sigmas), [e.a, e.b, SCALE_KEY],
                                          _scale_error(e.measurement)))

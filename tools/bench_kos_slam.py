@@ -1,0 +1,248 @@
+"""Benchmark: KOS SLAM on simulated office logs with and without the gyro (issue #9), several seeds and depth rates.
+
+    .venv/bin/python -m tools.bench_kos_slam LOG.mcap [LOG.mcap …] [--rates 10 5] [--laser] [--cache DIR] [--out docs]
+
+Per log, the depth frames go through FSPF+ and KOS once (at the highest rate asked) and the SLAM inputs are
+recorded: every call the run makes to mapping.pipeline.SlamFeed (odometry, KOS scans, IMU samples, and when log
+time advanced), pickled in --cache keyed by the log's path, size and mtime. Each SLAM configuration then replays
+them into a fresh Slam in seconds, feeding exactly what `kosmap slam --source kos` feeds. A lower depth rate keeps
+every scan at least 1/rate after the previous kept one (KosStream's min_period does the same on frames).
+Configurations: the defaults with the log's IMU; without it; with the IMU but the odometry scale fixed; with the IMU
+but the gyro bias left in the noise. Truths (odometry distance scale, gyro turn-on bias) come from the simulator's
+MCAP metadata (tools.simulate.log.simulation_truth). `--laser` also runs laser SLAM on logs that have a laser.
+Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import hashlib
+import json
+import math
+import os
+import pickle
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from tools.data import REPO
+
+CONFIGS = {
+    "imu": {},
+    "no imu": {"imu": False},
+    "imu, scale fixed": {"odom_scale": "fixed"},
+    "imu, bias fixed": {"gyro_bias": "fixed"},
+}
+
+
+def _key(log: Path, rate: float) -> str:
+    st = log.stat()
+    return hashlib.sha1(f"{log.resolve()}|{st.st_size}|{st.st_mtime_ns}|{rate}".encode()).hexdigest()[:16]
+
+
+def record(log: Path, rate: float, cache: Path) -> dict:
+    """The SlamFeed calls of a KOS run of `log` at `rate` Hz (cached), its ground truth and the default run's ATE."""
+    path = cache / f"{log.stem}-{_key(log, rate)}.pkl"
+    if path.exists():
+        return pickle.loads(path.read_bytes())
+    import mapping.pipeline as P
+    from mapping import slam as S
+    from mapping.config import Config
+
+    events: list = []
+    real = P.SlamFeed
+
+    class Recorder(real):
+        def odom(self, rec):
+            events.append(("o", rec.stamp_ns, rec.x, rec.y, rec.yaw))
+            super().odom(rec)
+
+        def imu(self, rec):
+            if rec.has_angular_velocity:
+                events.append(("i", rec.stamp_ns, rec.yaw_rate))
+            super().imu(rec)
+
+        def push(self, stamp_ns, pts):
+            events.append(("p", int(stamp_ns), np.asarray(pts, np.float32)))
+            super().push(stamp_ns, pts)
+
+        def advance(self, now):
+            if not events or events[-1] != ("a", now):
+                events.append(("a", now))
+            super().advance(now)
+
+    cfg = Config()
+    cfg.build.depth_rate = rate
+    t0 = time.perf_counter()
+    P.SlamFeed = Recorder
+    try:
+        r = S.run_slam(log, cfg, source="kos")
+    finally:
+        P.SlamFeed = real
+    doc = {"events": events, "gt": r.ground_truth, "kos_seconds": time.perf_counter() - t0,
+           "ate_full_run": S.evaluate(r)["ate"]["rmse"]}
+    cache.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_suffix(".partial")
+    tmp.write_bytes(pickle.dumps(doc))
+    os.replace(tmp, path)
+    return doc
+
+
+def replay(doc: dict, rate: float, **graph) -> dict:
+    """SLAM on recorded inputs with [graph] overrides (over the KOS graph defaults); accuracy and calibration."""
+    from frontend.records import Odometry
+    from mapping import slam as S
+    from mapping.config import Config
+    from mapping.pipeline import SlamFeed
+
+    cfg = Config()
+    cfg.build.depth_rate = rate
+    gcfg = dataclasses.replace(S.kos_graph_config(cfg), **graph)
+    slam = S.Slam(S.kos_odometry_config(cfg), gcfg)
+    has_imu = any(e[0] == "i" for e in doc["events"])
+    feed = SlamFeed(slam, True, has_imu)
+    period = int(1e9 / rate) - 10_000_000 if rate > 0 else 0
+    last = None
+    t0 = time.perf_counter()
+    for ev in doc["events"]:
+        if ev[0] == "o":
+            feed.odom(Odometry(ev[1], ev[2], ev[3], ev[4]))
+        elif ev[0] == "i":
+            if feed.use_imu:
+                slam.add_imu(ev[1], ev[2])
+        elif ev[0] == "p":
+            if last is None or ev[1] - last >= period:
+                feed.push(ev[1], ev[2])
+                last = ev[1]
+        else:
+            feed.advance(ev[1])
+    feed.advance(None)
+    r = slam.finish()
+    secs = time.perf_counter() - t0
+    r.ground_truth = doc["gt"]
+    m = S.evaluate(r)
+    s = S.summary(r)
+    return {"ate": m["ate"]["rmse"], "ate_max": m["ate"]["max"], "ate_odometry": m.get("ate_odometry", {}).get("rmse"),
+            "odometry_scale": s["odometry_scale"], "gyro_bias_deg_s": s["gyro_bias_deg_s"], "loops": s["loops"],
+            "keyframes": s["keyframes"], "gyro_factors": s["imu"]["factors"], "slam_seconds": secs,
+            "duration_s": r.duration_s, "warnings": s["warnings"]}
+
+
+def laser(log: Path, imu: bool) -> dict:
+    from mapping import slam as S
+    from mapping.config import Config
+
+    cfg = Config()
+    cfg.graph.imu = imu
+    t0 = time.perf_counter()
+    r = S.run_slam(log, cfg, source="laser")
+    secs = time.perf_counter() - t0
+    m = S.evaluate(r)
+    s = S.summary(r)
+    return {"ate": m["ate"]["rmse"], "ate_max": m["ate"]["max"], "odometry_scale": s["odometry_scale"],
+            "gyro_bias_deg_s": s["gyro_bias_deg_s"], "loops": s["loops"], "seconds": secs,
+            "realtime_factor": r.duration_s / secs}
+
+
+def _truth(log: Path) -> dict:
+    from tools.simulate.log import simulation_truth
+
+    t = simulation_truth(log) or {}
+    tr = t.get("truth", {})
+    c = t.get("config", {})
+    bias = (tr.get("imu") or {}).get("gyro_bias_initial_dps")
+    return {"seed": c.get("seed"), "rear_camera": c.get("rear_camera", False),
+            "odometry_scale": (tr.get("odometry") or {}).get("distance_scale"),
+            "gyro_bias_deg_s": bias[2] if isinstance(bias, list) else bias, "imu": tr.get("imu") is not None}
+
+
+def _f(v, fmt="{:.3f}") -> str:
+    return "–" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+
+
+def markdown(res: list[dict], lasers: list[dict], meta: dict) -> str:
+    out = ["# KOS SLAM with a gyro: simulated office (issue #9)", "",
+           f"{meta['date']}, {meta['machine']}, {meta['cores']} cores, load {meta['load']}. Generated by "
+           "`tools/bench_kos_slam.py` (the method is in its docstring). One front Kinect (or front + rear), wheel "
+           "odometry, and the simulator's /imu; ATE RMSE against the log's ground truth, after SE(2) alignment. "
+           "Scale: the wheel odometry's distance scale the graph estimated vs the simulator's truth. "
+           "SLAM seconds: the replay of recorded KOS scans (FSPF+ and KOS are not in them).", "",
+           "| log | seed | cameras | depth Hz | config | ATE m | ATE max m | odometry ATE m | scale | true scale | scale error % "
+           "| gyro bias °/s | true bias °/s | loops | SLAM s |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in res:
+        t = r["truth"]
+        err = (100 * (r["odometry_scale"] - t["odometry_scale"]) / t["odometry_scale"]
+               if r["odometry_scale"] is not None and t["odometry_scale"] else None)
+        out.append(f"| {r['log']} | {_f(t['seed'], '{}')} | {'front + rear' if t['rear_camera'] else 'front'} | {r['rate']:g} | "
+                   f"{r['config']} | {_f(r['ate'])} | {_f(r['ate_max'])} | {_f(r['ate_odometry'])} | "
+                   f"{_f(r['odometry_scale'], '{:.4f}')} | {_f(t['odometry_scale'], '{:.4f}')} | {_f(err, '{:+.2f}')} | "
+                   f"{_f(r['gyro_bias_deg_s'], '{:+.4f}')} | {_f(t['gyro_bias_deg_s'], '{:+.4f}')} | {r['loops']} | "
+                   f"{r['slam_seconds']:.1f} |")
+    if lasers:
+        out += ["", "Laser SLAM (Hokuyo-like 270°, 30 m) on the same logs, whole run from the log file:", "",
+                "| log | IMU | ATE m | ATE max m | scale | gyro bias °/s | loops | seconds | × real time |", "|---|---|---|---|---|---|---|---|---|"]
+        for r in lasers:
+            out.append(f"| {r['log']} | {'yes' if r['imu'] else 'no'} | {_f(r['ate'])} | {_f(r['ate_max'])} | "
+                       f"{_f(r['odometry_scale'], '{:.4f}')} | {_f(r['gyro_bias_deg_s'], '{:+.4f}')} | {r['loops']} | "
+                       f"{r['seconds']:.0f} | {r['realtime_factor']:.0f} |")
+    ok = [r for r in res if r["config"] == "imu" and not r["truth"]["rear_camera"] and r["rate"] == max(x["rate"] for x in res)]
+    if ok:
+        worst = max(r["ate"] for r in ok)
+        serr = [abs(r["odometry_scale"] / r["truth"]["odometry_scale"] - 1) * 100 for r in ok
+                if r["odometry_scale"] is not None and r["truth"]["odometry_scale"]]
+        out += ["", f"Acceptance (one front camera + IMU, {ok[0]['rate']:g} Hz, {len(ok)} seeds): worst ATE {worst:.3f} m "
+                f"(goal ≤ 0.10 m); scale error {', '.join(f'{e:.2f}' for e in serr)} % (goal ≤ 0.2 %)."]
+    return "\n".join(out) + "\n"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("logs", nargs="+", type=Path)
+    ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
+    ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
+    ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
+    ap.add_argument("--out", type=Path, default=REPO / "docs")
+    a = ap.parse_args()
+    res, lasers = [], []
+    top = max(a.rates)
+    for log in a.logs:
+        truth = _truth(log)
+        doc = record(log, top, a.cache)
+        print(f"{log.name}: KOS scans recorded ({doc['kos_seconds']:.0f} s; full run ATE {doc['ate_full_run']:.3f} m)", flush=True)
+        for rate in a.rates:
+            for name in a.configs:
+                r = replay(doc, rate, **CONFIGS[name])
+                r.update(log=log.name, rate=rate, config=name, truth=truth)
+                res.append(r)
+                print(f"  {rate:g} Hz {name:>17}: ATE {r['ate']:.3f} m, scale {_f(r['odometry_scale'], '{:.4f}')} "
+                      f"(truth {_f(truth['odometry_scale'], '{:.4f}')}), bias {_f(r['gyro_bias_deg_s'], '{:+.4f}')} °/s, "
+                      f"{r['slam_seconds']:.1f} s", flush=True)
+        if a.laser:
+            from frontend.logs import detect_topics, open_log
+            from mapping.config import Config
+
+            with open_log(log) as lg:
+                has_laser = bool(detect_topics(lg.info().types(), Config().topics).scan)
+            for imu in (True, False):
+                if has_laser:
+                    r = laser(log, imu)
+                    r.update(log=log.name, imu=imu)
+                    lasers.append(r)
+                    print(f"  laser imu={imu}: ATE {r['ate']:.3f} m, {r['realtime_factor']:.0f}× real time", flush=True)
+    meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.machine(), "cores": os.cpu_count(),
+            "load": " ".join(f"{x:.1f}" for x in os.getloadavg())}
+    from mapping.jsonsafe import json_safe
+
+    (a.out / "bench").mkdir(parents=True, exist_ok=True)
+    (a.out / "bench" / "kos_slam.json").write_text(json.dumps(json_safe({"meta": meta, "results": res, "laser": lasers}), indent=2))
+    (a.out / "bench" / "kos_slam.md").write_text(markdown(res, lasers, meta))
+    print(f"wrote {a.out / 'bench' / 'kos_slam.md'}")
+
+
+if __name__ == "__main__":
+    main()
