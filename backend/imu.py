@@ -5,7 +5,8 @@ both ends), exact for a rate linear in time. Its noise (graph.py GyroConfig, iss
 σ² = N²·Δt (white rate noise, N the noise density) + (σ_b·Δt)² (bias not estimated) + floor².
 Intervals the samples do not cover, with a gap between samples, or overlapping a run of identical outputs
 lasting ≥ `stuck_s` (a stuck MEMS part: real rate noise never repeats a float exactly) give no increment;
-the caller counts and reports them. The gyro is never trusted blindly.
+the caller counts and reports them (mapping/slam.py keeps a stuck stretch only where the robot did not turn:
+a coarse gyro at rest may repeat its value). The gyro is never trusted blindly.
 """
 
 from __future__ import annotations
@@ -76,7 +77,7 @@ class GyroBuffer:
     def started_before(self, stamp_ns: int) -> bool:
         return self.first_ns is not None and self.first_ns <= stamp_ns
 
-    def integrate(self, t0_ns: int, t1_ns: int) -> GyroIncrement:
+    def integrate(self, t0_ns: int, t1_ns: int, allow_stuck: bool = False) -> GyroIncrement:
         """∫ rate dt over [t0, t1] by the trapezoid rule, or an increment whose `reason` says why not. Within
         `max_gap_s` of the stream's first or last sample the rate is held (a keyframe just outside the stream)."""
         dt = (t1_ns - t0_ns) * 1e-9
@@ -85,7 +86,7 @@ class GyroBuffer:
             return GyroIncrement(0.0, dt, 0, "uncovered")
         if t1_ns <= t0_ns:
             return GyroIncrement(0.0, 0.0, 0, "")
-        for s, e in self.stuck:
+        for s, e in ([] if allow_stuck else self.stuck):
             if s <= t1_ns and e >= t0_ns:
                 return GyroIncrement(0.0, dt, 0, "stuck")
         lo = bisect_right(t, t0_ns)  # first sample strictly after t0

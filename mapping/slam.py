@@ -96,7 +96,8 @@ class Slam:
         self.gyro = GyroBuffer(self.gcfg.gyro_max_gap_s, self.gcfg.gyro_stuck_s)
         self.expect_imu = False  # the log has an IMU: node intervals wait for its samples
         self.gyro_pending: deque[tuple[int, int, int, int, np.ndarray]] = deque()  # (a, b, t_a, t_b, rel)
-        self.imu_stats = {"samples": 0, "factors": 0, "gap": 0, "stuck": 0, "uncovered": 0, "frontend_yaw": 0}
+        self.imu_stats = {"samples": 0, "factors": 0, "gap": 0, "stuck": 0, "uncovered": 0, "frontend_yaw": 0,
+                          "frontend_disagree": 0}
         self.imu_warnings: list[str] = []
         self._prev_scan: tuple[int, np.ndarray] | None = None  # (stamp, raw wheel odometry) of the last scan
         self._fused: np.ndarray | None = None  # wheel translation + gyro yaw, the front end's prediction
@@ -114,24 +115,31 @@ class Slam:
         self.expect_imu = True
         self.gyro.add(int(stamp_ns), float(yaw_rate))
         self.imu_stats["samples"] += 1
-        if self.gyro_pending and self.gyro.covers(self.gyro_pending[0][3]):
+        if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3]):
             self._flush_gyro(final=False)
+
+    def _gyro_settled(self, stamp_ns: int) -> bool:
+        """The samples reach `gyro_stuck_s` past the stamp: a stuck run that began before it has been seen."""
+        return self.gyro.covers(stamp_ns + int(self.gcfg.gyro_stuck_s * 1e9))
 
     def _flush_gyro(self, final: bool) -> None:
         """Gyro factors for the node intervals the samples now cover (`final`: all that are left)."""
         t0 = time.perf_counter()
         g = self.graph
-        while self.gyro_pending and (final or self.gyro.covers(self.gyro_pending[0][3])):
+        while self.gyro_pending and (final or self._gyro_settled(self.gyro_pending[0][3])):
             a, b, ta, tb, rel = self.gyro_pending.popleft()
             inc = self.gyro.integrate(ta, tb)
+            if inc.reason == "stuck" and abs(rel[2]) < STILL_YAW:
+                inc = self.gyro.integrate(ta, tb, allow_stuck=True)  # constant output, and the scans saw no turn either
             if inc.ok:
                 g.add_gyro(a, b, inc.dyaw, inc.dt, rel[:2])
                 self.imu_stats["factors"] += 1
             else:
                 self.imu_stats[inc.reason] += 1
                 if inc.reason == "stuck" and not any("stuck" in w for w in self.imu_warnings):
-                    self.imu_warnings.append(f"the gyro's output stayed constant for ≥ {self.gcfg.gyro_stuck_s:g} s (stuck?) "
-                                             f"from t = {self.gyro.stuck[0][0] * 1e-9:.1f} s: its samples there are dropped")
+                    self.imu_warnings.append(f"the gyro's output stayed constant for ≥ {self.gcfg.gyro_stuck_s:g} s while the "
+                                             f"robot turned (stuck?), from t = {self.gyro.stuck[0][0] * 1e-9:.1f} s: its "
+                                             f"samples there are dropped")
         keep = self.gyro_pending[0][2] if self.gyro_pending else (self.keyframes[-1].stamp_ns if self.keyframes else 0)
         if self._prev_scan is not None:
             keep = min(keep, self._prev_scan[0])
@@ -154,8 +162,14 @@ class Slam:
             inc[:2] /= self.graph.odom_scale  # 1 unless calibrated while running
             gi = self.gyro.integrate(t_prev, int(stamp_ns)) if self.expect_imu and self.gcfg.imu_frontend else None
             if gi is not None and gi.ok:
-                inc[2] = gi.dyaw - self.graph.gyro_bias * gi.dt
-                self.imu_stats["frontend_yaw"] += 1
+                g = gi.dyaw - self.graph.gyro_bias * gi.dt
+                # a stuck run is only flagged once it has lasted gyro_stuck_s: until then a gyro that disagrees with the
+                # wheels by more than they can err in one scan step (σ ≈ 0.3° in a turn on the simulator) is not used
+                if abs(se2.wrap(g - inc[2])) <= max(FE_GYRO_TOL, 0.25 * abs(inc[2])):
+                    inc[2] = g
+                    self.imu_stats["frontend_yaw"] += 1
+                else:
+                    self.imu_stats["frontend_disagree"] += 1
             fused = se2.compose(self._fused, inc)
         self._prev_scan = (int(stamp_ns), odom_pose)
         self._fused = fused
@@ -201,7 +215,7 @@ class Slam:
                 g.add_odometry(prev.id, kf.id, se2.between(prev.odom_pose, kf.odom_pose))
             if self.gcfg.imu and self.expect_imu:
                 self.gyro_pending.append((prev.id, kf.id, prev.stamp_ns, kf.stamp_ns, rel))
-                if self.gyro.covers(kf.stamp_ns):
+                if self._gyro_settled(kf.stamp_ns):
                     self._flush_gyro(final=False)
         self.keyframes.append(kf)
         t1 = time.perf_counter()
@@ -242,6 +256,9 @@ class Slam:
             self.imu_warnings.append(f"{st['gap'] + st['uncovered']} of {len(self.keyframes) - 1} node intervals had gyro gaps "
                                      f"(> {self.gcfg.gyro_max_gap_s:g} s without a sample) or lay outside the IMU stream: "
                                      f"no gyro factor there")
+        if st["frontend_disagree"] > 0.01 * max(st["frontend_yaw"] + st["frontend_disagree"], 1):
+            self.imu_warnings.append(f"the gyro disagreed with the wheel odometry on {st['frontend_disagree']} scan steps "
+                                     f"(> {math.degrees(FE_GYRO_TOL):g}° or 25 %): the wheels' yaw was predicted there")
         t0 = time.perf_counter()
         self.graph.optimize()
         self.t["optimize"] = time.perf_counter() - t0
@@ -257,6 +274,8 @@ class Slam:
                           warnings=list(self.imu_warnings))
 
 
+FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw this far (or 25 %) from the wheels'
+STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
 MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
 
 

@@ -90,7 +90,7 @@ def test_calibrating_while_running_feeds_the_scale_to_the_front_end(narrow):
 @pytest.mark.slow
 def test_gyro_gaps_and_stuck_output_from_a_log_file(tmp_path):
     log = make_log(seed=2, laps=1, beams=121, fov_deg=70.0, max_range=4.5, odom_scale=SCALE)
-    gs, gw = gyro_stream(log, gap=(20.0, 23.0), stuck=(40.0, 45.0))
+    gs, gw = gyro_stream(log, gap=(20.0, 23.0), stuck=(34.5, 37.5))  # stuck through the turn at 35–37.6 s
     path = tmp_path / "ring_imu.mcap"
     recs = records(log) + [Imu(int(s), np.array([0.0, 0.0, w]), np.array([0.0, 0.0, 9.81]), frame_id="base_link", topic="/imu")
                            for s, w in zip(gs, gw)]
