@@ -1,0 +1,69 @@
+"""FramePool: the process pool (frames through shared-memory slots) gives exactly the serial results, for raw
+uint16 millimetre frames and float32 metre frames, over more frames than the ring has slots."""
+
+import dataclasses
+
+import numpy as np
+
+from frontend.camera import DepthConfig, config_mount
+from frontend.depthstream import DepthItem
+from frontend.fspf import FspfConfig
+from frontend.kos import KosConfig, bearings_for
+from frontend.records import CameraModel
+from mapping.framepool import FramePool
+
+
+def _items(n: int) -> list[DepthItem]:
+    """A floor and a wall in front of a 64×48 camera, with seeded noise, some as uint16 mm and some in metres."""
+    rng = np.random.default_rng(5)
+    cam = CameraModel.from_fov(64, 48, np.radians(70.0), np.radians(60.0), "camera_optical_frame")
+    mount = config_mount(DepthConfig())
+    rows = np.arange(48, dtype=np.float32)[:, None]
+    items = []
+    for i in range(n):
+        wall = 2.0 + 0.1 * (i % 5)
+        floor = np.where(rows > cam.cy + 1, 0.4 * cam.fy / np.maximum(rows - cam.cy, 1.0), np.inf)
+        d = np.minimum(np.full((48, 64), wall, np.float32), floor).astype(np.float32)
+        d += rng.normal(0.0, 0.004, d.shape).astype(np.float32)
+        d[rng.random(d.shape) < 0.05] = 0.0
+        if i % 2 == 0:  # raw 16UC1, as mapping/kosscan.py passes it
+            depth = np.round(np.clip(d, 0.0, 60.0) * 1000.0).astype(np.uint16)
+        else:
+            depth = (np.round(np.clip(d, 0.0, 60.0) * 1000.0) * np.float32(0.001)).astype(np.float32)
+        items.append(DepthItem(i, 1_000_000_000 + i * 33_000_000, depth, cam, mount, "/depth", cam.frame_id))
+    return items
+
+
+def _run(items, workers: int):
+    fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
+    bearings = bearings_for([(items[0].camera, items[0].mount)], kos.angle_increment_deg)
+    out = []
+    with FramePool(fspf, depth, kos, workers, in_flight=2) as pool:  # a ring of 4 slots for 11 frames
+        for it in items:
+            pool.submit(it, bearings, keep_planes=it.index % 3 == 0, tag=it.index)
+            out += list(pool.results())
+        out += list(pool.results(wait_all=True))
+    return out
+
+
+def test_pool_equals_serial():
+    items = _items(11)
+    serial, parallel = _run(items, 0), _run(items, 2)
+    assert [t for _, t in serial] == [t for _, t in parallel] == list(range(11))
+    for (a, _), (b, _) in zip(serial, parallel):
+        assert a.index == b.index and a.stamp_ns == b.stamp_ns
+        np.testing.assert_array_equal(a.ranges, b.ranges)
+        assert dataclasses.astuple(a.stats)[:6] == dataclasses.astuple(b.stats)[:6]
+        assert (a.planes is None) == (b.planes is None)
+        if a.planes is not None:
+            np.testing.assert_array_equal(a.planes.points, b.planes.points)
+    assert sum(np.isfinite(f.ranges).sum() for f, _ in serial) > 0  # the frames saw something
+
+
+def test_uint16_is_millimetres():
+    """A raw uint16 frame gives the same result as the same depth in metres (DepthFrame.meters)."""
+    items = _items(2)
+    raw = items[0]
+    metres = dataclasses.replace(raw, depth=raw.depth.astype(np.float32) * np.float32(0.001))
+    a, b = _run([raw], 0)[0][0], _run([metres], 0)[0][0]
+    np.testing.assert_array_equal(a.ranges, b.ranges)
