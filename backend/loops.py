@@ -37,6 +37,13 @@ from frontend.odometry import voxel_filter
 
 NARROW_COVERAGE = 0.4  # a scan whose returns cover less than this share of 10° bearing sectors (144°) is narrow
 
+# Measured on the simulated office (361 s, one front camera, KOS scans replayed, no IMU, 10 Hz depth; loop precision
+# against ground truth at 0.1 m / 2°), single-scan search → these defaults: seed 0 ATE 0.149 → 0.107 m, loops 21
+# (38 % right) → 6 (100 %); seed 1 0.299 → 0.084 m, 18 (39 %) → 7 (100 %). The rival test decides most of it (the
+# wrong loops slid along a corridor: rival ≥ 0.998 × best, right ones ≤ 0.995 ×); the information ratio did not
+# separate right from wrong there (0.11–0.21 vs 0.10–0.17), so it is off. Laser logs take none of this (wide scans):
+# Intel, FR079, CSAIL give the same loops and relations error to the last digit.
+
 
 @dataclass
 class SubmapFields:
