@@ -26,7 +26,8 @@ import numpy as np
 from backend.metrics import read_relations, relations_metric, relations_metric_split
 from frontend import se2
 from mapping.config import Config, load_config
-from mapping.slam import _clean, evaluate, run_slam
+from mapping.jsonsafe import json_safe
+from mapping.slam import evaluate, run_slam
 from tools.data import REPO, data_dir
 
 LOGS = {
@@ -204,7 +205,7 @@ def main() -> None:
             "cores": os.cpu_count(), "load_before": load_before,
             "load_after": " ".join(f"{v:.2f}" for v in os.getloadavg()), "seconds": a.seconds, "params": params}
     (a.out / "bench").mkdir(parents=True, exist_ok=True)
-    (a.out / "bench" / "slam.json").write_text(json.dumps(_clean({"meta": meta, "results": res}), indent=2))
+    (a.out / "bench" / "slam.json").write_text(json.dumps(json_safe({"meta": meta, "results": res}), indent=2))
     (a.out / "benchmarks.md").write_text(markdown(res, meta))
     print(f"wrote {a.out / 'benchmarks.md'} and {a.out / 'bench' / 'slam.json'}")
 
