@@ -32,7 +32,7 @@ def test_build_prints_the_headline_and_writes_the_report(room, tmp_path, capsys)
     assert "F1 at 0.10 m  laser vs blueprint " in cap.out and "ATE RMSE      laser SLAM " in cap.out
     assert "× real time" in cap.out and f"report: {out / 'report.html'}" in cap.out
     m = json.loads((out / "metrics.json").read_text())
-    assert m["frames"]["processed"] == 45 and m["maps"]["laser"]["resolution"] == pytest.approx(0.1)
+    assert m["frames"]["processed"] == 15 and m["maps"]["laser"]["resolution"] == pytest.approx(0.1)
     assert "resolution = 0.1" in (out / "config.toml").read_text()
     assert (out / "report.html").is_file() and (out / "map_kos_obstacle.pgm").is_file()
 
