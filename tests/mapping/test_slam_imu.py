@@ -22,7 +22,7 @@ SCALE = 0.03  # the injected wheel-odometry scale error
 BIAS = math.radians(0.02)  # gyro turn-on bias, rad/s
 # wheel odometry σ close to the truth of make_log (1 % per √m would do; the [graph] defaults are for slipping laser
 # benchmark robots): the scale is observable only if the wheels are not declared worse than they are
-HONEST = {"odom_sigma_xy": 0.005, "odom_sigma_xy_per_m": 0.02}
+HONEST = {"odom_sigma_xy": 0.005, "odom_sigma_xy_per_m": 0.02, "imu_frontend": True}  # imu_frontend: as for KOS
 
 
 @pytest.fixture(scope="module")
