@@ -75,6 +75,7 @@ class GraphConfig(StageConfig):
     optimize_every: int = param(25, lo=1, doc="ISAM2 update every n nodes")
     odom_scale: str = param("estimate", choices=("estimate", "fixed"), doc="wheel-odometry translation scale: a graph variable (final solve) or fixed at 1")
     odom_scale_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="prior σ of the odometry scale around 1")
+    gyro_bias_every: int = param(50, lo=0, doc="with a gyro, re-estimate its bias every n nodes while running (0: only in the final solve): an unmodelled bias drifts the running estimate the loop search starts from")
     calibrate_every: int = param(0, lo=0, doc="re-estimate the odometry scale and gyro bias every n nodes while running (0: only in the final solve); the front end's prediction and new factors use them")
     imu: bool = param(True, doc="use the log's gyro (sensor_msgs/Imu yaw rate) when it has one")
     imu_frontend: bool = param(False, doc="the front end's motion prediction takes its yaw from the gyro (translation from the wheels); on for KOS (mapping.slam.KOS_GRAPH), off for a laser (simulated office, 40 Hz laser: ATE 0.028 m off, 0.044 m on)")
@@ -313,14 +314,14 @@ class PoseGraph:
             self.gyro_bias = float(result.atVector(BIAS_KEY)[0])
         return {"error_before": float(before), "error_after": float(graph.error(result))}
 
-    def calibrate(self, max_iterations: int = 5) -> None:
+    def calibrate(self, max_iterations: int = 5, scale: bool = True) -> None:
         """Re-estimate the odometry scale and the gyro bias from every factor so far (Gauss–Newton from the
         current estimate, which stays as it is); later factors and the front end's prediction use them."""
         self.update()
         vals = gtsam.Values()
         for i in range(self.n):
             vals.insert(i, gtsam.Pose2(*map(float, self.est[i])))
-        full, _ = self._batch_graph(vals)
+        full, _ = self._batch_graph(vals, use_scale=scale)
         if full is self.all_factors:
             return
         res = _gauss_newton(full, vals, max_iterations=max_iterations)
@@ -329,11 +330,11 @@ class PoseGraph:
         if res.exists(BIAS_KEY):
             self.gyro_bias = float(res.atVector(BIAS_KEY)[0])
 
-    def _batch_graph(self, vals, outliers: set[int] = frozenset()) -> tuple:
+    def _batch_graph(self, vals, outliers: set[int] = frozenset(), use_scale: bool = True) -> tuple:
         """Every factor for the final solve: odometry factors with the scale variable and gyro factors with the bias
         variable (gtsam CustomFactor) when those are estimated; their priors; and the non-loop factor indices."""
         c = self.cfg
-        scale = c.odom_scale == "estimate" and any(e.kind == "odom" for e in self.edges)
+        scale = use_scale and c.odom_scale == "estimate" and any(e.kind == "odom" for e in self.edges)
         bias = c.gyro_bias == "estimate" and any(e.kind == "gyro" for e in self.edges)
         known = [i for i, e in enumerate(self.edges) if e.kind != "loop"]
         if not (scale or bias):
