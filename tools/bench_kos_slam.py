@@ -33,7 +33,7 @@ from tools.data import REPO
 
 CONFIGS = {
     "imu": {},
-    "imu, calibrated at the end only": {"calibrate_every": 0, "gyro_bias_every": 0},
+    "imu, calibrated at the end only": {"calibrate_every": 0},
     "no imu": {"imu": False},
     "imu, scale fixed": {"odom_scale": "fixed"},
     "imu, bias fixed": {"gyro_bias": "fixed"},
