@@ -115,18 +115,19 @@ class Slam:
         self.expect_imu = True
         self.gyro.add(int(stamp_ns), float(yaw_rate))
         self.imu_stats["samples"] += 1
-        if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3]):
-            self._flush_gyro(final=False)
 
-    def _gyro_settled(self, stamp_ns: int) -> bool:
-        """The samples reach `gyro_stuck_s` past the stamp: a stuck run that began before it has been seen."""
-        return self.gyro.covers(stamp_ns + int(self.gcfg.gyro_stuck_s * 1e9))
+    def _gyro_settled(self, stamp_ns: int, now_ns: int) -> bool:
+        """The scans have reached `gyro_stuck_s` past the stamp and the samples cover it: a stuck run that began
+        before it has been seen. Decided at scan times only, never by how far the reader ran ahead of the scans
+        (a parallel run reads further ahead than a serial one; both must add the same factors at the same node)."""
+        t = stamp_ns + int(self.gcfg.gyro_stuck_s * 1e9)
+        return t <= now_ns and self.gyro.covers(t)
 
-    def _flush_gyro(self, final: bool) -> None:
-        """Gyro factors for the node intervals the samples now cover (`final`: all that are left)."""
+    def _flush_gyro(self, final: bool, now_ns: int = 0) -> None:
+        """Gyro factors for the node intervals settled at scan time `now_ns` (`final`: all that are left)."""
         t0 = time.perf_counter()
         g = self.graph
-        while self.gyro_pending and (final or self._gyro_settled(self.gyro_pending[0][3])):
+        while self.gyro_pending and (final or self._gyro_settled(self.gyro_pending[0][3], now_ns)):
             a, b, ta, tb, rel = self.gyro_pending.popleft()
             inc = self.gyro.integrate(ta, tb)
             if inc.reason == "stuck" and abs(rel[2]) < STILL_YAW:
@@ -178,6 +179,8 @@ class Slam:
     def add_scan(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None = None) -> None:
         """One scan: points (N×2, base_link), the wheel odometry at its stamp (or None)."""
         t0 = time.perf_counter()
+        if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3], int(stamp_ns)):
+            self._flush_gyro(final=False, now_ns=int(stamp_ns))
         res = self.frontend.update(stamp_ns, points, self._predict_with_gyro(stamp_ns, odom_pose))
         t1 = time.perf_counter()
         self.t["frontend"] += t1 - t0
@@ -215,8 +218,6 @@ class Slam:
                 g.add_odometry(prev.id, kf.id, se2.between(prev.odom_pose, kf.odom_pose))
             if self.gcfg.imu and self.expect_imu:
                 self.gyro_pending.append((prev.id, kf.id, prev.stamp_ns, kf.stamp_ns, rel))
-                if self._gyro_settled(kf.stamp_ns):
-                    self._flush_gyro(final=False)
         self.keyframes.append(kf)
         t1 = time.perf_counter()
         self.t["graph"] += t1 - t0

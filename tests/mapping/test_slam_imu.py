@@ -47,12 +47,12 @@ def gyro_stream(log, seed: int = 0, hz: float = 400.0, gap=None, stuck=None):
     return log.stamps_ns[0] + np.round(tg[keep] * 1e9).astype(np.int64), w[keep]
 
 
-def _run(log, gyro=None, **graph):
+def _run(log, gyro=None, ahead_ns: int = 20_000_000, **graph):
     slam = Slam(OdometryConfig(**KOS_FRONTEND), GraphConfig(**{**HONEST, **graph}))
     k = 0
     for scan, o in zip(log.scans, log.odom):
         if gyro is not None:  # the gyro arrives ahead of the scan, as in a log
-            while k < len(gyro[0]) and gyro[0][k] <= scan.stamp_ns + 20_000_000:
+            while k < len(gyro[0]) and gyro[0][k] <= scan.stamp_ns + ahead_ns:
                 slam.add_imu(int(gyro[0][k]), float(gyro[1][k]))
                 k += 1
         slam.add_scan(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), log.mount, 0.1, 4.5), o)
@@ -75,6 +75,17 @@ def test_gyro_factors_on_a_narrow_corridor_ring(narrow):
     assert s1["odometry_scale"] > 1.01  # measured 1.0139: towards the injected 1.03, see the next test
     assert s0["gyro_bias_deg_s"] is None and not r0.imu_stats["factors"]  # no IMU: as before
     assert not r1.warnings
+
+
+@pytest.mark.slow
+def test_how_far_the_gyro_runs_ahead_of_the_scans_changes_nothing(narrow):
+    # kosmap build reads the log ahead of the scans the worker pool returns, further with more workers: the gyro
+    # factors are settled at scan times, so serial and parallel runs solve the same graph (they once differed:
+    # office KOS SLAM ATE 0.032 vs 0.036 m from two identical parallel runs)
+    g = gyro_stream(narrow)
+    r1, a1 = _run(narrow, g, ahead_ns=20_000_000)
+    r2, a2 = _run(narrow, g, ahead_ns=3_000_000_000)
+    assert np.array_equal(r1.poses, r2.poses) and a1 == a2
 
 
 @pytest.mark.slow
