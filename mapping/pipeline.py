@@ -17,7 +17,6 @@ usual, marked partial in metrics.json and the report.
 from __future__ import annotations
 
 import csv
-import dataclasses
 import json
 import os
 import shutil
@@ -270,16 +269,6 @@ def _planar(tf: Transform | None) -> np.ndarray:
     if tf is None:
         return np.zeros(3)
     return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float)
-
-
-def _merged(base, overrides: dict, what: str):
-    """A stage config with `overrides` applied (from [build] kos_odometry / kos_graph)."""
-    known = {f.name for f in dataclasses.fields(base)}
-    bad = [k for k in overrides if k not in known]
-    if bad:
-        raise ConfigError(f"config [build] {what} has unknown key(s) {', '.join(bad)}; "
-                          f"known: {', '.join(sorted(known))}")
-    return dataclasses.replace(base, **overrides)
 
 
 # ---- the build --------------------------------------------------------------------------------------------------------

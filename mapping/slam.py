@@ -434,15 +434,20 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
 KOS_FRONTEND = {**NARROW_SCAN, "prior_weight_yaw": 100.0}
 
 
-def kos_odometry_config(cfg) -> OdometryConfig:
-    """The front end for a narrow KOS scan: [odometry] with KOS_FRONTEND, then [build] kos_odometry applied."""
-    known = {f.name for f in dataclasses.fields(cfg.odometry)}
-    bad = [k for k in cfg.build.kos_odometry if k not in known]
+def _with_overrides(base, defaults: dict, overrides: dict, what: str):
+    """`base` with `defaults`, then the user's [build] `what` table, applied; an unknown key is a config error."""
+    known = {f.name for f in dataclasses.fields(base)}
+    bad = [k for k in overrides if k not in known]
     if bad:
         from frontend.errors import ConfigError
 
-        raise ConfigError(f"config [build] kos_odometry has unknown key(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
-    return dataclasses.replace(cfg.odometry, **{**KOS_FRONTEND, **cfg.build.kos_odometry})
+        raise ConfigError(f"config [build] {what} has unknown key(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
+    return dataclasses.replace(base, **{**defaults, **overrides})
+
+
+def kos_odometry_config(cfg) -> OdometryConfig:
+    """The front end for a narrow KOS scan: [odometry] with KOS_FRONTEND, then [build] kos_odometry applied."""
+    return _with_overrides(cfg.odometry, KOS_FRONTEND, cfg.build.kos_odometry, "kos_odometry")
 
 
 # The graph for a narrow KOS scan, before [build] kos_graph: wheel-odometry factors closer to what a wheeled indoor robot
@@ -466,13 +471,7 @@ KOS_GRAPH = {"odom_sigma_xy": 0.005, "odom_sigma_xy_per_m": 0.02, "calibrate_eve
 
 def kos_graph_config(cfg) -> GraphConfig:
     """The graph for a narrow KOS scan: [graph] with KOS_GRAPH, then [build] kos_graph applied."""
-    known = {f.name for f in dataclasses.fields(cfg.graph)}
-    bad = [k for k in cfg.build.kos_graph if k not in known]
-    if bad:
-        from frontend.errors import ConfigError
-
-        raise ConfigError(f"config [build] kos_graph has unknown key(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
-    return dataclasses.replace(cfg.graph, **{**KOS_GRAPH, **cfg.build.kos_graph})
+    return _with_overrides(cfg.graph, KOS_GRAPH, cfg.build.kos_graph, "kos_graph")
 
 
 def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | None, workers: int) -> SlamResult:

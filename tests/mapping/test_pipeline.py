@@ -176,6 +176,8 @@ def test_an_unknown_slam_scan_is_refused(logs, tmp_path):
         build(logs["full"], tmp_path / "o", load_config(None, ["build.slam_scan=\"h9_99\""]), workers=0)
     with pytest.raises(ConfigError, match="kos_odometry has unknown key"):
         build(logs["full"], tmp_path / "o", load_config(None, ["build.kos_odometry={nonsense=1}"]), workers=0)
+    with pytest.raises(ConfigError, match="kos_graph has unknown key"):
+        build(logs["full"], tmp_path / "o", load_config(None, ["build.kos_graph={nonsense=1}"]), workers=0)
 
 
 @pytest.mark.slow
