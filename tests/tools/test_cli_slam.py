@@ -40,6 +40,8 @@ def test_slam_writes_every_output(ring_log, tmp_path, capsys):
     assert m["ate"]["rmse"] < 0.05  # scored against the log's /ground_truth/odom
     assert "submap_nodes = 20" in (out / "config.toml").read_text()
     assert "ATE" in stdout
+    assert f"estimated: wheel odometry distance scale {m['run']['odometry_scale']:.4f}" in stdout  # the graph's own
+    assert "gyro" not in stdout  # no IMU in this log
 
 
 def test_slam_kos_source_without_depth_is_a_clear_error(ring_log, tmp_path, capsys):

@@ -28,7 +28,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
-        from mapping.slam import build_map, evaluate, run_slam, save_run
+        from mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
         cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic,
                             imu_topic=imu_topic)
@@ -71,6 +71,11 @@ def register(app: typer.Typer) -> None:
             a = metrics["ate"]
             print(f"ATE: rmse {a['rmse']:.4f} m, max {a['max']:.4f} m ({a['n']} poses)"
                   + (f"; wheel odometry alone {metrics['ate_odometry']['rmse']:.4f} m" if "ate_odometry" in metrics else ""))
+        run = summary(result)  # what the graph calibrated (issue #9): the wheels' distance scale, the gyro's bias
+        cal = ([f"wheel odometry distance scale {run['odometry_scale']:.4f}"] if run.get("odometry_scale") is not None else []) + \
+              ([f"gyro bias {run['gyro_bias_deg_s']:+.4f} °/s"] if run.get("gyro_bias_deg_s") is not None else [])
+        if cal:
+            print("estimated: " + ", ".join(cal))
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)
         print(f"wrote {', '.join(p.name for p in paths.values())} to {out}")
