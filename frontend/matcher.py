@@ -244,6 +244,15 @@ def branch_and_bound(pyr, cells, wx, wy, min_score):
     the max pyramid (Hess et al. 2016, Alg. 3): a block's score at level h bounds every offset inside it.
     Returns (r, dx, dy, score); r = −1 when nothing beats min_score.
     """
+    return branch_and_bound_excluding(pyr, cells, wx, wy, min_score, -1, 0, 0, 0, 0)
+
+
+@njit(cache=True)
+def branch_and_bound_excluding(pyr, cells, wx, wy, min_score, er, ex, ey, rad_xy, rad_r):
+    """branch_and_bound where leaves within `rad_xy` cells (Chebyshev, in x and y) of (ex, ey) and `rad_r`
+    rotation steps of `er` do not count: the exact best score outside that neighbourhood (backend/ambiguity.py's
+    rival peak). A block's bound still covers the leaves it holds outside it, so the search stays exact.
+    `er` < 0 excludes nothing."""
     depth = pyr.shape[0]
     p = 1 << (depth - 1)
     top = depth - 1
@@ -302,6 +311,8 @@ def branch_and_bound(pyr, cells, wx, wy, min_score):
         ox = st_x[sp]
         oy = st_y[sp]
         if lvl == 0:
+            if er >= 0 and abs(ox - ex) <= rad_xy and abs(oy - ey) <= rad_xy and abs(r - er) <= rad_r:
+                continue
             best = sc
             br = r
             bx = ox

@@ -7,11 +7,12 @@ import math
 
 import numpy as np
 
-from backend.ambiguity import branch_and_bound_excluding, translation_information
+from backend.ambiguity import translation_information
 from backend.graph import GraphConfig, PoseGraph
 from backend.keyframes import Keyframe
 from backend.loops import LoopCloser, bearing_coverage
 from frontend import se2
+from frontend.matcher import branch_and_bound_excluding
 
 FOV = math.radians(70.6)
 
