@@ -91,7 +91,9 @@ def cpu_ms(fn, repeat: int = 15) -> float:
 @njit(cache=True, error_model="numpy")
 def _stages(depth, mask, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, bin0, n, full_circle, lo, hi, dmin, dmax,
             rmin2, rmax2, out2, upto):  # pragma: no cover - compiled
-    """`frontend.kos._accumulate_image` stopped after stage `upto` (0 rows, 1 column bins, 2 band minima, 3 all)."""
+    """`frontend.kos._accumulate_image` stopped after stage `upto` (0 rows, 1 column bins, 2 band minima, 3 all).
+    A copy on purpose: an `upto` argument on the kernel itself made add_depth ~1.4× slower (1.17 vs 0.75–0.89 ms
+    for 3 levels + obstacle, measured 2026-11-23), the production path must not pay for the profile."""
     h, w = depth.shape
     n_band = lo.shape[0]
     R = K._ROWS
