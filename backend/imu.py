@@ -1,7 +1,7 @@
 """Gyro yaw rate: buffered, integrated between graph nodes, and checked for gaps and a stuck output.
 
 The yaw increment between two stamps is the trapezoid integral of the rate samples (linearly interpolated at
-both ends), exact for a rate linear in time. Its noise (graph.py GyroConfig, issue #9):
+both ends), exact for a rate linear in time. Its noise ([graph] gyro_* keys, issue #9):
 σ² = N²·Δt (white rate noise, N the noise density) + (σ_b·Δt)² (bias not estimated) + floor².
 Intervals the samples do not cover, with a gap between samples, or overlapping a run of identical outputs
 lasting ≥ `stuck_s` (a stuck MEMS part: real rate noise never repeats a float exactly) give no increment;
@@ -43,7 +43,6 @@ class GyroBuffer:
         self.stuck: list[list[int]] = []  # [start, end] ns spans of constant output lasting ≥ stuck_s
         self._run_start: int | None = None  # stamp where the current run of identical values began
         self.dropped = 0  # out-of-order or duplicate samples ignored
-        self.first_ns: int | None = None
 
     def __len__(self) -> int:
         return len(self.t)
@@ -55,8 +54,6 @@ class GyroBuffer:
         if not math.isfinite(rate) or (self.t and stamp_ns <= self.t[-1]):
             self.dropped += 1
             return
-        if self.first_ns is None:
-            self.first_ns = stamp_ns
         if self.w and rate == self.w[-1]:
             if self._run_start is None:
                 self._run_start = self.t[-1]
@@ -73,9 +70,6 @@ class GyroBuffer:
     def covers(self, stamp_ns: int) -> bool:
         """A sample at or after `stamp_ns` has arrived (the interval ending there can be integrated)."""
         return bool(self.t) and self.t[-1] >= stamp_ns
-
-    def started_before(self, stamp_ns: int) -> bool:
-        return self.first_ns is not None and self.first_ns <= stamp_ns
 
     def integrate(self, t0_ns: int, t1_ns: int, allow_stuck: bool = False) -> GyroIncrement:
         """∫ rate dt over [t0, t1] by the trapezoid rule, or an increment whose `reason` says why not. Within
