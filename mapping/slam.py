@@ -92,7 +92,7 @@ class Slam:
         self.since_update = 0  # nodes added since the last ISAM2 update
         self.since_loop = 0  # loops added since the last ISAM2 update
         self.calibrations = 0
-        # the gyro (issue #9): samples buffered; a yaw factor per node interval once the samples cover its end
+        # the gyro (issue #9): samples buffered; a yaw factor per node interval once scans and samples are past its end
         self.gyro = GyroBuffer(self.gcfg.gyro_max_gap_s, self.gcfg.gyro_stuck_s)
         self.expect_imu = False  # the log has an IMU: node intervals wait for its samples
         self.gyro_pending: deque[tuple[int, int, int, int, np.ndarray]] = deque()  # (a, b, t_a, t_b, rel)
@@ -104,7 +104,8 @@ class Slam:
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
-        and a yaw rate (rad/s about base_link z). Any order relative to the scans: factors wait for coverage."""
+        and a yaw rate (rad/s about base_link z). Samples may arrive ahead of the scans: a node interval's factor is
+        made at a later scan once the samples cover it (or at finish)."""
         if not self.gcfg.imu:
             return
         if yaw_rate is None:
