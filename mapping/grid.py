@@ -8,6 +8,7 @@ import numpy as np
 
 from numba import njit
 
+from frontend.deskew import deskew_points, sensor_twist
 from frontend.params import StageConfig, param
 
 
@@ -168,6 +169,7 @@ class GridBuilder:
     """
 
     GROW = 64  # cells: growth granularity (and minimum margin) when a scan leaves the array
+    DESKEW_MAX_GAP_S = 0.5  # a twist from poses farther apart than this is not trusted for de-skewing
 
     def __init__(self, config: GridConfig | None = None, mount=(0.0, 0.0, 0.0), engine: str = "numba") -> None:
         self.config = config or GridConfig()
@@ -186,6 +188,7 @@ class GridBuilder:
         self.engine = engine
         self.c0 = self.r0 = 0  # global cell index (floor(x / res), floor(y / res)) of log_odds[0, 0]
         self.n_scans = 0
+        self._last: tuple[int, tuple] | None = None  # (stamp, pose) of the previous scan: the twist for de-skewing
 
     # -- geometry --------------------------------------------------------------------------------------------------
     def _ensure(self, cmin: int, rmin: int, cmax: int, rmax: int) -> None:
@@ -218,11 +221,14 @@ class GridBuilder:
         """Cells that some beam has updated."""
         return self.stamp > 0
 
-    def beams(self, pose, scan, mount=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Sensor position (2,), beam ends (N×2, map frame), whether each ends in a hit (N,): the beams to trace."""
+    def beams(self, pose, scan, mount=None, twist=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Sensor position (2,), beam ends (N×2, map frame), whether each ends in a hit (N,): the beams to trace.
+
+        With `twist` ((vx, vy), ω: the sensor's velocity in its frame) and a scan whose beams are taken one
+        after the other (`time_increment` > 0), each beam is moved into the sensor frame at the stamp
+        (frontend/deskew.py)."""
         sx, sy, sth = _compose(pose, self.mount if mount is None else mount)
         r = np.asarray(scan.ranges, np.float64)
-        a = scan.angles + sth
         cfg = self.config
         hit = np.isfinite(r) & (r >= scan.range_min) & (r < scan.range_max)
         no_return = (np.isposinf(r) | (np.isfinite(r) & (r >= scan.range_max)))  # REP 117; NaN / -inf / < min: ignored
@@ -233,12 +239,28 @@ class GridBuilder:
             no_return |= far
             length = np.where(far, cfg.max_range, length)
         use = hit | (no_return & (length > 0))
-        ends = np.column_stack((sx + length[use] * np.cos(a[use]), sy + length[use] * np.sin(a[use])))
+        if twist is not None and scan.time_increment > 0:
+            local = deskew_points(length, scan.angles, scan.time_increment, twist[0], twist[1])[use]
+            c, s = np.cos(sth), np.sin(sth)
+            ends = np.column_stack((sx + c * local[:, 0] - s * local[:, 1], sy + s * local[:, 0] + c * local[:, 1]))
+        else:
+            a = scan.angles[use] + sth
+            ends = np.column_stack((sx + length[use] * np.cos(a), sy + length[use] * np.sin(a)))
         return np.array([sx, sy]), ends, hit[use], use
 
     def add(self, pose, scan, mount=None) -> None:
-        """Integrate one scan taken at `pose` (x, y, yaw of base_link in the map); `mount` overrides the builder's."""
-        origin, ends, hit, _ = self.beams(pose, scan, mount)
+        """Integrate one scan taken at `pose` (x, y, yaw of base_link in the map); `mount` overrides the builder's.
+
+        A scan with `time_increment` > 0 is de-skewed with the twist between the previous scan's pose and this
+        one (within DESKEW_MAX_GAP_S; the first scan, or one after a gap, is taken as instantaneous)."""
+        m = self.mount if mount is None else mount
+        twist = None
+        if scan.time_increment > 0 and self._last is not None:
+            dt = (scan.stamp_ns - self._last[0]) * 1e-9
+            if 0 < dt <= self.DESKEW_MAX_GAP_S:
+                twist = sensor_twist(self._last[1], pose, dt, m)
+        self._last = (scan.stamp_ns, tuple(float(v) for v in pose))
+        origin, ends, hit, _ = self.beams(pose, scan, mount, twist)
         self.add_beams(origin, ends, hit)
 
     def add_beams(self, origin: np.ndarray, ends: np.ndarray, hit: np.ndarray) -> None:
