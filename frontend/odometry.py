@@ -149,6 +149,17 @@ class WheelOdometry:
         p[2] = float(se2.wrap(p[2]))
         return p
 
+    def twist_at(self, stamp_ns: int, mount=(0.0, 0.0, 0.0),
+                 window_ns: int = 50_000_000) -> tuple[tuple[float, float], float] | None:
+        """The twist ((vx, vy) in its own frame, ω) of a sensor mounted at `mount` in base_link over the
+        `window_ns` before `stamp_ns`, from the samples (None when they do not span that window): what
+        de-skewing a scan stamped then needs (`scan_to_points(..., twist=)`)."""
+        if len(self.t) < 2 or self.t[0] > stamp_ns - window_ns or self.t[-1] < stamp_ns:
+            return None
+        from frontend.deskew import sensor_twist
+
+        return sensor_twist(self.pose_at(stamp_ns - window_ns), self.pose_at(stamp_ns), window_ns * 1e-9, mount)
+
     def drop_before(self, stamp_ns: int) -> None:
         """Forget samples older than the one just before `stamp_ns` (memory stays flat on long logs)."""
         i = bisect.bisect_left(self.t, stamp_ns) - 1
@@ -191,7 +202,10 @@ def thin(points: np.ndarray, spacing: float) -> np.ndarray:
 
 
 @njit(cache=True)
-def _scan_points(ranges, angle_min, inc, lo, hi, mx, my, myaw):
+def _scan_points(ranges, angle_min, inc, lo, hi, mx, my, myaw, w_dt, vx_dt, vy_dt):
+    """Beam end points in base_link; beam i de-skewed into the sensor frame at the stamp by the sensor's turn
+    (w_dt = ω·time_increment) and motion (v·time_increment) over its i·time_increment (frontend/deskew.py; all
+    three 0 for an instantaneous scan)."""
     n = ranges.shape[0]
     out = np.empty((n, 2))
     m = 0
@@ -201,23 +215,27 @@ def _scan_points(ranges, angle_min, inc, lo, hi, mx, my, myaw):
         r = ranges[i]
         if not (r >= lo and r <= hi):  # also drops NaN and ±inf
             continue
-        a = angle_min + i * inc
-        x = r * math.cos(a)
-        y = r * math.sin(a)
+        a = angle_min + i * inc + i * w_dt
+        x = r * math.cos(a) + i * vx_dt
+        y = r * math.sin(a) + i * vy_dt
         out[m, 0] = mx + c * x - s * y
         out[m, 1] = my + s * x + c * y
         m += 1
     return out[:m]
 
 
-def scan_to_points(scan, mount: np.ndarray | None, min_range: float, max_range: float) -> np.ndarray:
+def scan_to_points(scan, mount: np.ndarray | None, min_range: float, max_range: float, twist=None) -> np.ndarray:
     """End points (N×2, base_link) of the beams of a Scan that returned within [min_range, max_range]
-    (and within the scan's own [range_min, range_max)); `mount` = the sensor's pose in base_link."""
+    (and within the scan's own [range_min, range_max)); `mount` = the sensor's pose in base_link. With `twist`
+    ((vx, vy), ω: the sensor's velocity in its own frame, `frontend.deskew.sensor_twist`) a scan taken beam by
+    beam (time_increment > 0) is de-skewed."""
     lo = max(float(min_range), float(scan.range_min))
     hi = min(float(max_range), math.nextafter(float(scan.range_max), 0.0))
     m = np.zeros(3) if mount is None else np.asarray(mount, dtype=float)
+    dt = float(scan.time_increment) if twist is not None else 0.0
+    (vx, vy), w = twist if twist is not None else ((0.0, 0.0), 0.0)
     return _scan_points(np.asarray(scan.ranges), float(scan.angle_min), float(scan.angle_increment), lo, hi,
-                        float(m[0]), float(m[1]), float(m[2]))
+                        float(m[0]), float(m[1]), float(m[2]), float(w) * dt, float(vx) * dt, float(vy) * dt)
 
 
 def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: float) -> np.ndarray:
