@@ -142,6 +142,32 @@ class FramePool:
             self._queue.popleft()
             yield head, tag
 
+    @property
+    def executor(self) -> ProcessPoolExecutor | None:
+        """The worker processes (None when serial): mapping/pipeline.py runs its grid and comparison jobs there
+        after the frames, instead of forking new workers from a process that has grown meanwhile."""
+        return self._ex
+
+    def peak_rss_mb(self) -> float:
+        """The largest peak resident memory (VmHWM) of the live workers, MB (0 when serial or not on Linux): the
+        workers live until the build ends, so getrusage(RUSAGE_CHILDREN) cannot see them before."""
+        peak = 0
+        for pid in list(getattr(self._ex, "_processes", None) or {}):
+            try:
+                with open(f"/proc/{pid}/status") as fh:
+                    peak = max([peak] + [int(x.split()[1]) for x in fh if x.startswith("VmHWM:")])
+            except (OSError, ValueError, IndexError):
+                continue
+        return peak / 1024
+
+    def drop(self) -> None:
+        """Forget the queued frames (Ctrl-C): those not started are cancelled, the running ones finish unread; the
+        workers stay."""
+        for f, _ in self._queue:
+            if isinstance(f, Future):
+                f.cancel()
+        self._queue.clear()
+
     def close(self, cancel: bool = False) -> None:
         """Stop the workers (dropping queued frames when `cancel`)."""
         self._queue.clear() if cancel else None

@@ -131,12 +131,14 @@ class SlamFeed:
 # ---- the spill: per-step scans on disk between the passes -----------------------------------------------------------
 
 class _Series:
-    """Fixed-width float32 rows appended to a file, with their stamps; read back as a memmap."""
+    """Fixed-width float32 rows appended to a file, with a stamp per row added by `add` (8 bytes a scan: all the
+    series keeps in memory); read back in chunks (`_RowReader`)."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.fh = open(path, "wb")
         self.stamps = array("q")
+        self.rows = 0
         self.width = 0
         self.meta: dict = {}
 
@@ -148,18 +150,22 @@ class _Series:
             return False  # a scan of another shape (a changed laser configuration): skipped
         self.fh.write(row.tobytes())
         self.stamps.append(int(stamp_ns))
+        self.rows += 1
         return True
 
-    def add_rows(self, stamp_ns: int, rows: np.ndarray) -> None:
-        """Several rows at once (all with this stamp)."""
+    def add_rows(self, rows: np.ndarray) -> int:
+        """Several rows at once, without stamps (the caller indexes them: Spill.cloud_index); returns the first
+        row's number. A stamp per row here cost 8 bytes per plane point, 19 MB over a 10-minute log."""
         rows = np.ascontiguousarray(rows, np.float32)
         if self.width == 0:
             self.width = rows.shape[1]
         self.fh.write(rows.tobytes())
-        self.stamps.extend([int(stamp_ns)] * len(rows))
+        first = self.rows
+        self.rows += len(rows)
+        return first
 
     def __len__(self) -> int:
-        return len(self.stamps)
+        return self.rows
 
     def close(self) -> None:
         if not self.fh.closed:
@@ -204,12 +210,11 @@ class Spill:
         self.laser = _Series(folder / "laser.f32")
         self.fused = _Series(folder / "fused.f32")
         self.planes = _Series(folder / "planes.f32")  # rows of 4: x y z class (base_link); one cloud per index entry
-        self.cloud_index: list[tuple[int, int, int]] = []  # (stamp, first row, rows)
+        self.cloud_index: list[tuple[int, int, int]] = []  # (stamp, first row, rows): one cloud a second
 
     def add_cloud(self, stamp_ns: int, pts: np.ndarray, cls: np.ndarray) -> None:
-        first = len(self.planes)
-        self.planes.add_rows(stamp_ns, np.column_stack((pts, cls)).astype(np.float32))
-        self.cloud_index.append((stamp_ns, first, len(pts)))
+        first = self.planes.add_rows(np.column_stack((pts, cls)).astype(np.float32))
+        self.cloud_index.append((int(stamp_ns), first, len(pts)))
 
     def close(self) -> None:
         for s in (self.kos, self.laser, self.fused, self.planes):
@@ -329,8 +334,15 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
     spill_dir = Path(tempfile.mkdtemp(prefix=".kosmap-spill-", dir=out))
     warnings: list[str] = []
+    pool = None
     try:
-        p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings,
+        # One set of worker processes for the whole build, forked now while this process is small: the frames in
+        # pass 1, then the grid and comparison jobs. Workers forked after pass 1 counted every page of this process
+        # (by then holding SLAM's state) as their own resident memory: 167 → 259 MB from a 1- to a 10-minute log.
+        _warm_grid()  # compiled (or loaded) before the fork: every worker inherits the grid kernel
+        if has_depth:
+            pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None)
+        p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings, pool,
                     Slam(kos_ocfg, kos_gcfg) if has_depth else None,
                     Slam(cfg.odometry, cfg.graph) if has_laser else None)
         rss = {"after_read": _peak_rss_mb()}
@@ -351,8 +363,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         rss["after_slam"] = _peak_rss_mb()
         spill: Spill = p1["spill"]
         t_maps = time.perf_counter()
-        _warm_grid()
-        jobs = _Jobs(workers)
+        jobs = _Jobs(workers, pool.executor if pool is not None else None)
         try:
             grids, traj = _pass2(spill, p1, results, cfg, out, files, bands, jobs)
             maps_s = time.perf_counter() - t_maps
@@ -368,7 +379,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
-        metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": _peak_rss_mb(children=True)}
+        metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": max(
+            _peak_rss_mb(children=True), pool.peak_rss_mb() if pool is not None else 0.0)}
         metrics["timing"]["total_s"] = time.perf_counter() - t_start
         metrics["timing"]["cpu_s"] = time.process_time() - cpu_start
         metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
@@ -386,6 +398,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
         return BuildResult(out, json_safe(metrics), files)
     finally:
+        if pool is not None:
+            pool.close(cancel=True)
         shutil.rmtree(spill_dir, ignore_errors=True)
 
 
@@ -402,8 +416,9 @@ def _expected_units(det, counts: dict, duration: float, bcfg) -> int:
 
 
 def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: int, progress: bool,
-           on_progress, spill_dir: Path, warnings: list[str], kos_slam, laser_slam) -> dict:
-    """Read the log once: frames to the pool, steps and laser scans to SLAM and the spill, stats to stats.csv."""
+           on_progress, spill_dir: Path, warnings: list[str], pool: FramePool | None, kos_slam, laser_slam) -> dict:
+    """Read the log once: frames to `pool` (the caller's, left open for pass 2), steps and laser scans to SLAM and
+    the spill, stats to stats.csv."""
     bcfg = cfg.build
     out = spill_dir.parent
     spill = Spill(spill_dir)
@@ -527,7 +542,6 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
             signal.signal(signal.SIGINT, old_handler or signal.default_int_handler)
         old_handler = signal.signal(signal.SIGINT, _sigint)
 
-    pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None) if det.depth else None
     stream = None
     if pool is not None:
         min_period = int(1e9 / bcfg.depth_rate) if bcfg.depth_rate > 0 else 0
@@ -580,7 +594,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         except KeyboardInterrupt:
             state["partial"] = True
             if pool is not None:
-                pool.close(cancel=True)
+                pool.drop()  # the frames in flight are not waited for; the workers stay for pass 2
         if not state["partial"] and stream is not None:
             for step in stream.flush():
                 on_step(step)
@@ -589,8 +603,6 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         run.warnings.extend(lg.warnings)
     finally:
         lg.close()
-        if pool is not None:
-            pool.close(cancel=True)
         if bar is not None:
             bar.stop()
         if old_handler is not None:
@@ -616,12 +628,15 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
 # ---- pass 2: grids from the optimised poses, the MCAP ------------------------------------------------------------
 
 class _Jobs:
-    """Independent jobs (one grid, one comparison) in `workers` forked processes, or here when workers = 0;
-    results in submission order. The jobs read the spill from disk, so nothing large is copied to them."""
+    """Independent jobs (one grid, one comparison) in `workers` forked processes (the frame pool's `executor` when
+    given: not shut down here), or here when workers = 0; results in submission order. The jobs read the spill
+    from disk, so nothing large is copied to them."""
 
-    def __init__(self, workers: int) -> None:
-        self.ex = None
-        if workers > 0:
+    def __init__(self, workers: int, executor=None) -> None:
+        self.ex = executor if workers > 0 else None
+        self.own = False
+        if workers > 0 and self.ex is None:
+            self.own = True
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
@@ -635,7 +650,7 @@ class _Jobs:
         return self.ex.submit(fn, *args)
 
     def close(self) -> None:
-        if self.ex is not None:
+        if self.ex is not None and self.own:
             self.ex.shutdown(wait=True, cancel_futures=True)
 
 
@@ -772,20 +787,24 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
 
     primary = "kos" if "kos" in results else "laser"
     pres = results[primary]
-    events: list[tuple[int, int, int]] = []  # (stamp, kind, index), written in time order
-    events += [(int(s), 0, i) for i, s in enumerate(kos_stamps)]
-    events += [(int(s), 1, i) for i, s in enumerate(spill.laser.stamps)]
-    events += [(int(s), 2, i) for i, s in enumerate(spill.fused.stamps)]
-    events += [(int(s), 3, i) for i, (s, _, _) in enumerate(spill.cloud_index)]
-    events += [(int(s), 4, i) for i, s in enumerate(pres.stamps_ns)]
-    events.sort()
+    # (stamp, kind, index) of every message, written in time order: three int64 arrays (24 bytes a message), not
+    # a list of tuples (~100 bytes each)
+    parts = [np.asarray(kos_stamps, np.int64), np.array(spill.laser.stamps, np.int64),
+             np.array(spill.fused.stamps, np.int64),
+             np.array([c[0] for c in spill.cloud_index], np.int64).reshape(-1), np.asarray(pres.stamps_ns, np.int64)]
+    ev_t = np.concatenate(parts)
+    ev_k = np.concatenate([np.full(len(a), k, np.int64) for k, a in enumerate(parts)])
+    ev_i = np.concatenate([np.arange(len(a), dtype=np.int64) for a in parts])
+    order = np.lexsort((ev_i, ev_k, ev_t))
     kos_rows, laser_rows, fused_rows, plane_rows = (spill.kos.reader(), spill.laser.reader(), spill.fused.reader(),
                                                     spill.planes.reader())
-    t_end = int(max([e[0] for e in events] or [0]))
+    t_end = int(ev_t.max()) if len(ev_t) else 0
     with McapWriter(path) as w:
         for rec in p1["statics"]:
             w.write(rec, "/tf_static")
-        for stamp, kind, i in events:
+        for stamp, kind, i in ((t, k, j) for c in range(0, len(order), 4096) for t, k, j in
+                               zip(ev_t[order[c:c + 4096]].tolist(), ev_k[order[c:c + 4096]].tolist(),
+                                   ev_i[order[c:c + 4096]].tolist())):
             if kind == 0:
                 r = kos_rows.get(i).reshape(len(bands), -1)
                 for k, b in enumerate(bands):
