@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+from array import array
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -81,11 +82,13 @@ class Slam:
         self.loops = LoopCloser(self.gcfg)
         self.select = KeyframeSelector(self.gcfg.node_distance, np.radians(self.gcfg.node_angle_deg), self.ocfg.min_points)
         self.keyframes: list[Keyframe] = []
-        self.stamps: list[int] = []
-        self.local: list[np.ndarray] = []
-        self.odom: list[np.ndarray] = []
-        self.matched: list[bool] = []
-        self.key_of_scan: list[int] = []
+        # per scan, compact (65 bytes a scan; lists of 3-vectors held ~220 more, tests/mapping/test_memory.py): stamp,
+        # front-end pose (x y yaw flattened), wheel odometry (NaN where none), matched, keyframe it hangs from
+        self.stamps = array("q")
+        self.local = array("d")
+        self.odom = array("d")
+        self.matched = array("b")
+        self.key_of_scan = array("q")
         self.points: list[np.ndarray] | None = [] if keep_points else None
         self.t = {"frontend": 0.0, "graph": 0.0, "loops": 0.0}
         self.found: list[LoopConstraint] = []
@@ -187,15 +190,19 @@ class Slam:
         self.t["frontend"] += t1 - t0
         i = len(self.stamps)
         self.stamps.append(int(stamp_ns))
-        self.local.append(res.pose)
-        self.odom.append(np.full(3, np.nan) if odom_pose is None else np.asarray(odom_pose, dtype=float))
-        self.matched.append(res.matched)
+        self.local.extend(map(float, res.pose))
+        self.odom.extend(_NAN3 if odom_pose is None else map(float, odom_pose))
+        self.matched.append(bool(res.matched))
         if self.points is not None:
             self.points.append(np.asarray(points, dtype=np.float32))
         if self.select(res.pose, len(points)):
             cov = res.covariance(self.gcfg.match_n_eff) if self.gcfg.match_noise == "hessian" else None
-            self._add_keyframe(Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
-                                        None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov))
+            kf = Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
+                          None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov)
+            self._add_keyframe(kf)
+            # the loop closer has taken its thinned float32 copy (backend/loops.py); the full scan is not kept for the
+            # whole run (5–17 KB a keyframe as float64: ~10 MB per 5 minutes of the office on both SLAMs)
+            kf.points = _NO_POINTS
         self.key_of_scan.append(max(len(self.keyframes) - 1, 0))
 
     def _add_keyframe(self, kf: Keyframe) -> None:
@@ -270,16 +277,19 @@ class Slam:
         self.t["optimize"] = time.perf_counter() - t0
         self.loops.release()
         key_local = np.array([k.local_pose for k in self.keyframes])
-        local = np.array(self.local)
-        kos = np.array(self.key_of_scan)
+        local = np.array(self.local, dtype=float).reshape(-1, 3)
+        kos = np.array(self.key_of_scan, dtype=np.int64)
         poses = scan_poses(local, kos, key_local, self.graph.est)
-        return SlamResult(np.array(self.stamps, dtype=np.int64), poses, local, np.array(self.odom),
+        return SlamResult(np.array(self.stamps, dtype=np.int64), poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
                           loop_stats=dataclasses.asdict(self.loops.stats), imu_stats=dict(self.imu_stats),
                           warnings=list(self.imu_warnings))
 
 
+_NAN3 = (math.nan, math.nan, math.nan)
+_NO_POINTS = np.zeros((0, 2))
+_NO_POINTS.flags.writeable = False
 FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw this far (or 25 %) from the wheels'
 STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
 MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
