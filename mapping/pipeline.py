@@ -428,6 +428,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     laser_feed = SlamFeed(laser_slam, use_odom, bool(det.imu)) if laser_slam is not None else None
     feeds = [f for f in (kos_feed, laser_feed) if f is not None]
     statics: list[Transforms] = []
+    static_keys: set[tuple] = set()
     gt = array("d")  # t, x, y, yaw flattened
     stats = {k: array("f") for k in TABLE_5_2}
     state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "laser_mount": None,
@@ -580,6 +581,11 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                         for f in feeds:
                             f.odom(rec)
                 elif isinstance(rec, Transforms) and rec.static:
+                    key = tuple((t.parent, t.child, *np.asarray(t.translation, float).tolist(),
+                                 *np.asarray(t.rotation, float).tolist()) for t in rec.transforms)
+                    if key in static_keys:  # a recorder may republish /tf_static every second: kept once (here
+                        continue  # and by the depth stream), not once per message for the whole run
+                    static_keys.add(key)
                     statics.append(rec)
                 elif det.imu and rec.topic == det.imu:
                     for f in feeds:

@@ -94,3 +94,39 @@ def test_the_spill_keeps_no_per_point_state(tmp_path):
     stamp, first, n = sp.cloud_index[57]
     back = sp.planes.reader().block(first, n)
     assert stamp == 57_000_000_000 and np.allclose(back[:, :3], pts.astype(np.float32)) and np.array_equal(back[:, 3], cls)
+
+
+@pytest.mark.slow
+def test_a_republished_tf_static_is_kept_once(tmp_path):
+    """A recorder may republish /tf_static every second: the build keeps (and writes) each distinct set once, not
+    once per message for the whole run; the maps are those of the log with a single /tf_static."""
+    from frontend.logs import open_log
+    from frontend.logs.writer import McapWriter
+    from frontend.records import DepthFrame, Transforms
+    from mapping.config import load_config
+    from mapping.mapio import read_map_server
+    from mapping.pipeline import build
+    from tools.simulate import SimConfig, load_world, simulate
+
+    log = tmp_path / "room.mcap"
+    simulate(load_world("room"), SimConfig(seed=2, duration=1.0), log)
+    again = tmp_path / "republished.mcap"
+    statics = []
+    with open_log(log) as lg, McapWriter(again) as w:
+        for rec in lg.read(lg.info().types()):
+            if isinstance(rec, Transforms) and rec.static:
+                statics.append(rec)
+            elif isinstance(rec, DepthFrame) and statics:  # the same /tf_static again before every depth frame
+                for s in statics:
+                    w.write(Transforms(rec.stamp_ns, s.transforms, True, s.topic), s.topic)
+            w.write(rec, rec.topic)
+    with open_log(again) as lg:
+        assert lg.info().count("/tf_static") > 20
+    cfg = load_config(None, ["build.depth_rate=0"])
+    a = build(log, tmp_path / "a", cfg, workers=0, report=False)
+    b = build(again, tmp_path / "b", cfg, workers=0, report=False)
+    with open_log(b.out / "kosmap.mcap") as lg:
+        assert lg.info().count("/tf_static") == len(statics)
+    for name in a.metrics["maps"]:
+        ga, gb = read_map_server(a.out / f"map_{name}.yaml"), read_map_server(b.out / f"map_{name}.yaml")
+        assert np.array_equal(ga.data, gb.data), name
