@@ -330,6 +330,40 @@ def test_office_world_has_what_the_issue_asks_for():
     assert np.any((d < 0.5) & (dt > 120))
 
 
+def test_office_survey_path_enters_every_room_and_looks_round():
+    """The office's named `survey` path: legal (no wall or furniture within the robot's radius), and within 2.5 m of
+    the middle of each of the 16 side rooms, where a {spin} turns the robot round so the camera looks all round."""
+    from tools.simulate.motion import check_path
+    from tools.simulate.world import SPIN_SIDE
+
+    w = load_world("office")
+    survey = w.paths["survey"]
+    check_path(w, survey, SimConfig().robot_radius)
+    traj = plan(survey, 0.3, 0.6, 0.5, math.radians(45), math.radians(90), np.random.default_rng(0))
+    assert traj.distance > 300
+    p = traj.pose(np.arange(0.0, traj.duration, 0.5))
+    rooms = [(x + 4.0, y) for x in range(0, 48, 8) for y in (2.5, 21.5)] + [(2.5, 8.5), (2.5, 15.5), (45.5, 8.5), (45.5, 15.5)]
+    for cx, cy in rooms:
+        near = np.hypot(p[:, 0] - cx, p[:, 1] - cy) < 2.5
+        assert near.any(), (cx, cy)
+        # bearings the 70.6° camera looked along there, in 5° bins: all but a few
+        look = (p[near, 2][:, None] + np.radians(np.arange(-35, 36, 5))[None, :]).ravel()
+        assert len(np.unique(np.floor(np.mod(np.degrees(look), 360) / 5))) >= 68, (cx, cy)  # ≥ 340° of 360°
+    wps = survey.waypoints  # a spin is a square of SPIN_SIDE back to its start
+    k = next(i for i in range(len(wps) - 4) if np.allclose(wps[i + 1] - wps[i], [SPIN_SIDE, 0.0]))
+    assert np.allclose(wps[k + 4], wps[k]) and np.allclose(wps[k + 2] - wps[k], [SPIN_SIDE, SPIN_SIDE])
+
+
+def test_named_path_and_spin_errors(tmp_path, capsys):
+    bad = tmp_path / "w.yaml"
+    bad.write_text("walls:\n  - [0, 0, 4, 0]\npaths:\n  tour:\n    waypoints: [[1, 1], {turn: [2, 2]}]\n")
+    with pytest.raises(WorldError, match=r"waypoint 1 must be \[x, y\] or \{spin"):
+        load_world(bad)
+    code = main(["simulate", "office", "--out", str(tmp_path / "o.mcap"), "--path", "grand_tour"])
+    err = capsys.readouterr().err
+    assert code == 2 and "no such file" in err and "survey" in err and not list(tmp_path.glob("o.mcap*"))
+
+
 # ---- bad parameters -----------------------------------------------------------------------------------------------
 
 def test_bad_parameters_are_refused(room, tmp_path):

@@ -83,7 +83,7 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output log (.mcap).")] = None,
         seed: Annotated[Optional[int], typer.Option("--seed", help="Random seed (same seed → identical file).")] = None,
         duration: Annotated[Optional[float], typer.Option("--duration", help="Seconds to simulate (default: the whole path).")] = None,
-        path: Annotated[Optional[Path], typer.Option("--path", help="Waypoints file (YAML or 'x y' lines) instead of the world's path.")] = None,
+        path: Annotated[Optional[Path], typer.Option("--path", help="Waypoints file (YAML or 'x y' lines), or the name of one of the world's paths (office: survey), instead of its default path.")] = None,
         rear_camera: Annotated[bool, typer.Option("--rear-camera", help="Add a rear-facing Kinect.")] = False,
         no_laser: Annotated[bool, typer.Option("--no-laser", help="Leave the laser scanner out.")] = False,
         no_imu: Annotated[bool, typer.Option("--no-imu", help="Leave the IMU (/imu, 200 Hz gyro + accelerometer) out.")] = False,
@@ -118,7 +118,13 @@ def register(app: typer.Typer) -> None:
         if camera:  # added to the config's extra_cameras
             cfg = dataclasses.replace(cfg, extra_cameras=cfg.extra_cameras + [_parse_camera(c) for c in camera])
         w = load_world(world)
-        way = load_path(path) if path is not None else None
+        if path is not None and not path.exists() and str(path) in w.paths:
+            way = w.paths[str(path)]  # one of the world's named paths (office: survey)
+        elif path is not None and not path.exists():
+            named = f" or one of the world's paths: {', '.join(w.paths)}" if w.paths else ""
+            raise ConfigError(f"--path {path}: no such file; give a waypoints file{named}")
+        else:
+            way = load_path(path) if path is not None else None
         if blueprint is not None:
             from mapping.mapio import write_map_server
 

@@ -148,6 +148,7 @@ class World:
         self.solids: list[Solid] = []
         self.surfaces: list[Surface] = []
         self.path: PathSpec | None = None
+        self.paths: dict[str, PathSpec] = {}  # further bundled paths by name (`paths:` in the world file)
         self.description = ""
         self.floor_id = self._surface("floor", "floor", np.array([0.0, 0.0, 1.0]), 0.0)
         self.ceiling_id = self._surface("ceiling", "ceiling", np.array([0.0, 0.0, -1.0]), -self.wall_height)
@@ -390,7 +391,7 @@ def load_world(name_or_path: str | Path) -> World:
 
 
 _KNOWN = {"name", "description", "wall_height", "wall_thickness", "walls", "floorplan", "doors", "tables",
-          "shelves", "obstacles", "boxes", "ramps", "cylinders", "path"}
+          "shelves", "obstacles", "boxes", "ramps", "cylinders", "path", "paths"}
 
 
 class _Reader:
@@ -576,15 +577,39 @@ def world_from_dict(data: dict, base: Path = Path("."), default_name: str = "wor
                            r.num("radius", positive=True), float(z[0]), float(min(z[1], H)))
     if data.get("path") is not None:
         world.path = path_from_dict(data["path"], where)
+    named = data.get("paths") or {}
+    if not isinstance(named, dict):
+        raise WorldError(f"{where}: paths must be a table of named paths ({{name: {{waypoints: …}}}})")
+    for name, p in named.items():
+        world.paths[str(name)] = path_from_dict(p, f"{where} (paths.{name})")
     return world
 
 
+SPIN_SIDE = 0.4  # m: the square a {spin: [x, y]} waypoint drives round, turning 90° in place at each corner
+
+
+def _expand_spins(wps, where: str) -> list:
+    """Waypoints with each {spin: [x, y]} replaced by (x, y) and a 0.4 m square back to it: four 90° turns in
+    place, so a narrow depth camera looks all round the room (a survey's way to see every wall)."""
+    out = []
+    for i, w in enumerate(wps if isinstance(wps, list) else []):
+        if isinstance(w, dict):
+            if set(w) != {"spin"}:
+                raise WorldError(f"{where}: waypoint {i} must be [x, y] or {{spin: [x, y]}}, not {w}")
+            x, y = _points([w["spin"], w["spin"]], where, f"waypoint {i}'s spin")[0]
+            d = SPIN_SIDE
+            out += [[x, y], [x + d, y], [x + d, y + d], [x, y + d], [x, y]]
+        else:
+            out.append(w)
+    return out if isinstance(wps, list) else wps
+
+
 def path_from_dict(p, where: str) -> PathSpec:
-    """A path: {waypoints: [[x, y], …], start_yaw: degrees (optional)} or a bare list of points."""
+    """A path: {waypoints: [[x, y] or {spin: [x, y]}, …], start_yaw: degrees (optional)} or a bare list of points."""
     if isinstance(p, list):
         p = {"waypoints": p}
     r = _Reader(where, "path", p)
-    wps = _points(p.get("waypoints"), where, "path.waypoints")
+    wps = _points(_expand_spins(p.get("waypoints"), where), where, "path.waypoints")
     yaw = p.get("start_yaw")
     return PathSpec(wps, None if yaw is None else math.radians(r.num("start_yaw")))
 
