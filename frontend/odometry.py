@@ -50,6 +50,8 @@ class OdometryConfig(StageConfig):
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(30.0, lo=0.0, lo_open=True, doc="ignore returns farther than this", unit="m")
     use_wheel_odometry: bool = param(True, doc="use the log's wheel odometry as the motion prior")
+    deskew: bool = param(True, doc="de-skew a laser scan taken beam by beam (time_increment > 0) with the wheel "
+                         "odometry's twist; off for a driver that stamps its scans other than at the first beam")
     resolution: float = param(0.05, lo=0.0, lo_open=True, doc="fine likelihood field cell size", unit="m")
     coarse_resolution: float = param(0.1, lo=0.0, lo_open=True, doc="coarse likelihood field cell size", unit="m")
     submap_size: float = param(30.0, lo=1.0, doc="side of a local submap's square field", unit="m")

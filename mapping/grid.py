@@ -18,6 +18,8 @@ class GridConfig(StageConfig):
 
     section = "grid"
     resolution: float = param(0.05, lo=0.0, lo_open=True, doc="cell size", unit="m")
+    deskew: bool = param(True, doc="de-skew a scan taken beam by beam (time_increment > 0) with the twist between "
+                         "consecutive poses")
     p_hit: float = param(0.7, lo=0.5, hi=1.0, lo_open=True, doc="occupancy probability of a beam's end cell")
     p_miss: float = param(0.4, lo=0.0, hi=0.5, doc="occupancy probability of a cell a beam passes")
     no_return_clear: float = param(4.0, lo=0.0, doc="beams without return clear free space this far", unit="m")
@@ -255,7 +257,7 @@ class GridBuilder:
         one (within DESKEW_MAX_GAP_S; the first scan, or one after a gap, is taken as instantaneous)."""
         m = self.mount if mount is None else mount
         twist = None
-        if scan.time_increment > 0 and self._last is not None:
+        if self.config.deskew and scan.time_increment > 0 and self._last is not None:
             dt = (scan.stamp_ns - self._last[0]) * 1e-9
             if 0 < dt <= self.DESKEW_MAX_GAP_S:
                 twist = sensor_twist(self._last[1], pose, dt, m)

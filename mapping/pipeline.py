@@ -40,7 +40,7 @@ from frontend.errors import ConfigError, KosmapError, TopicError
 from frontend.kos import FUSED, OBSTACLE, fuse_with_laser
 from frontend.kosframe import KosFrame
 from frontend.logs import detect_topics, open_log
-from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base
+from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
 from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
 from mapping.framepool import FramePool, default_workers
@@ -88,14 +88,17 @@ class SlamFeed:
         if self.use_imu:
             self.slam.add_imu(rec)
 
-    def push(self, stamp_ns: int, points: np.ndarray) -> None:
-        self.pending.append((int(stamp_ns), points))
+    def push(self, stamp_ns: int, points: np.ndarray, deskew: tuple | None = None) -> None:
+        """A scan's points (base_link); `deskew` = (scan, mount, min_range, max_range) for a scan taken beam by beam
+        (time_increment > 0): once the odometry around its stamp is in, its points are made again de-skewed with
+        the odometry's twist (frontend/deskew.py)."""
+        self.pending.append((int(stamp_ns), points, deskew))
 
     def advance(self, now_ns: int | None) -> None:
         """Hand SLAM every pending scan whose odometry is settled (`now_ns` None: the log has ended)."""
         wait = int(ODOM_WAIT_S * 1e9)
         while self.pending:
-            stamp, pts = self.pending[0]
+            stamp, pts, deskew = self.pending[0]
             settled = ((not self.use_odom or self.wheel.covers(stamp))
                        and (not self.use_imu or self.slam.gyro.covers(stamp)))
             if now_ns is not None and not settled and now_ns - stamp <= wait:
@@ -104,6 +107,11 @@ class SlamFeed:
             odom = self._odom_at(stamp) if self.use_odom else None
             if self.use_odom and odom is None:
                 self.no_odom += 1
+            if deskew is not None and self.use_odom:
+                scan, mount, lo, hi = deskew
+                twist = self.wheel.twist_at(stamp, mount)
+                if twist is not None:
+                    pts = scan_to_points(scan, mount, lo, hi, twist)
             self.slam.add_scan(stamp, pts, odom)
             self.added += 1
             self.wheel.drop_before(stamp - int(2e9))
@@ -526,12 +534,13 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         if not spill.laser.meta:
             spill.laser.meta = {"angle_min": scan.angle_min, "angle_increment": scan.angle_increment,
                                 "range_min": scan.range_min, "range_max": scan.range_max, "frame_id": scan.frame_id,
-                                "topic": scan.topic}
+                                "topic": scan.topic, "time_increment": scan.time_increment}
         state["last_laser"] = scan.stamp_ns
         state["laser_kept"] += 1
         o = laser_feed.slam.ocfg
         laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), state["laser_mount"],
-                                                        o.min_range, o.max_range))
+                                                        o.min_range, o.max_range),
+                        (scan, state["laser_mount"], o.min_range, o.max_range) if o.deskew and scan.time_increment > 0 else None)
         if not det.depth:
             tick()
 
@@ -675,7 +684,8 @@ def _warm_grid() -> None:
 
 def _scan_of(meta: dict, stamp: int, ranges: np.ndarray, topic: str = "") -> Scan:
     return Scan(int(stamp), np.asarray(ranges, np.float32), meta["angle_min"], meta["angle_increment"],
-                meta["range_min"], meta["range_max"], meta.get("frame_id", ""), topic)
+                meta["range_min"], meta["range_max"], meta.get("frame_id", ""), topic,
+                time_increment=meta.get("time_increment", 0.0))
 
 
 def _grid_job(gcfg, mount, path: str, width: int, band: tuple | None, meta: dict, stamps: np.ndarray,

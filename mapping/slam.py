@@ -379,7 +379,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
                     if frame != base:
                         warnings.append(f"no static transform from {base} to {frame}; the scan is taken as mounted at {base}")
                 mounts[frame] = m
-            pts = scan_to_points(scan, mounts[frame], ocfg.min_range, ocfg.max_range)
+            twist = wheel.twist_at(scan.stamp_ns, mounts[frame]) if use_odom and ocfg.deskew and scan.time_increment > 0 else None
+            pts = scan_to_points(scan, mounts[frame], ocfg.min_range, ocfg.max_range, twist)  # de-skewed when taken beam by beam
             if len(pts) < ocfg.min_points:
                 state["empty"] += 1
             odom = None
@@ -653,7 +654,7 @@ def summary(result: SlamResult) -> dict:
             "seconds": dict(result.timings), "realtime_factor": result.realtime_factor,
             "mount": result.mount.tolist(), "loop_search": result.loop_stats,
             "odometry_scale": result.graph.odom_scale if "odom" in kinds and result.graph.cfg.odom_scale == "estimate" else None,
-            "gyro_bias_deg_s": (math.degrees(result.graph.gyro_bias) if "gyro" in kinds and result.graph.cfg.gyro_bias == "estimate"
+            "gyro_bias_deg_s": (math.degrees(result.graph.gyro_bias_mean) if "gyro" in kinds and result.graph.cfg.gyro_bias == "estimate"
                                 else None),
             "imu": result.imu_stats, "warnings": list(result.warnings)}
 

@@ -143,3 +143,31 @@ def test_slam_points_are_deskewed_with_the_wheel_odometrys_twist():
     plain = scan_to_points(sc, np.array(MOUNT), 0.05, 30.0)
     zero = scan_to_points(sc, np.array(MOUNT), 0.05, 30.0, ((0.0, 0.0), 0.0))
     assert np.array_equal(plain, zero)  # no twist, no change, to the bit
+
+
+@pytest.mark.slow
+def test_build_deskews_a_spinning_lasers_scans(tmp_path):
+    """`kosmap build` end to end on a simulated room log whose Hokuyo scans are taken beam by beam (18.75 ms for
+    270°) while the robot spins at 90 °/s: with de-skewing (the default) the laser SLAM and its map are closer to
+    the truth than with [odometry] deskew and [grid] deskew off. Measured (seed 3): ATE 0.008 vs 0.016 m, map
+    precision at 0.05 m 0.85 vs 0.73."""
+    from mapping.config import Config
+    from mapping.mapio import write_map_server
+    from mapping.pipeline import build
+    from tools.simulate import SimConfig, load_world, simulate
+    from tools.simulate.world import path_from_dict
+
+    w = load_world("room")
+    bp = write_map_server(w.blueprint(0.05), tmp_path / "bp.yaml", ".png")
+    path = path_from_dict({"waypoints": [[1.2, 1.4], {"spin": [1.3, 1.4]}, [3.8, 1.4], {"spin": [3.7, 3.2]}, [1.2, 3.6]]}, "test")
+    log = tmp_path / "spin.mcap"
+    simulate(w, SimConfig(seed=3, depth_rate=1.0, laser_rate=10.0, turn_rate_deg=90.0, compression="lz4"), log, path)
+    got = {}
+    for on in (True, False):
+        cfg = Config()
+        cfg.grid.deskew = cfg.odometry.deskew = on
+        m = build(log, tmp_path / f"out_{on}", cfg, blueprint=bp, workers=0).metrics
+        got[on] = (m["slam"]["laser"]["ate"]["rmse"], m["comparisons"]["laser_vs_blueprint"]["tolerances"]["0.05"]["precision"])
+    (ate_on, p_on), (ate_off, p_off) = got[True], got[False]
+    assert ate_on < 0.7 * ate_off, got
+    assert p_on > p_off + 0.05, got
