@@ -38,7 +38,7 @@ d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-"))
 try:
     w = load_world("room")
     laps = PathSpec(np.vstack([w.path.waypoints[:5]] * 4))  # four laps: enough keyframes for a loop search
-    simulate(w, SimConfig(depth_rate=1.0, laser_rate=5.0, speed_min=0.6, speed_max=0.6), d / "room.mcap", laps)
+    simulate(w, SimConfig(depth_rate=3.0, laser_rate=5.0, speed_min=0.6, speed_max=0.6), d / "room.mcap", laps)
     bp = write_map_server(w.blueprint(0.05), d / "bp.yaml", ".png")
     build(d / "room.mcap", d / "out", Config(), blueprint=bp, workers=0)
 finally:
