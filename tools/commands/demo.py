@@ -37,7 +37,7 @@ from tools.simulate.world import PathSpec
 d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-"))
 try:
     w = load_world("room")
-    laps = PathSpec(np.vstack([w.path.waypoints[:5]] * 4))  # four laps: enough keyframes for a loop search
+    laps = PathSpec(np.vstack([w.path.waypoints[:5]] * 3))  # three laps at 3 Hz: both SLAMs search for loops
     simulate(w, SimConfig(depth_rate=3.0, laser_rate=5.0, speed_min=0.6, speed_max=0.6), d / "room.mcap", laps)
     bp = write_map_server(w.blueprint(0.05), d / "bp.yaml", ".png")
     build(d / "room.mcap", d / "out", Config(), blueprint=bp, workers=0)
@@ -47,7 +47,7 @@ finally:
 
 
 def warm_up():
-    """A small build of the room (four laps, so that loops are searched) in another process, so that numba
+    """A small build of the room (three laps, so that both SLAMs search for loops) in another process, so that numba
     compiles (and caches) every kernel of the pipeline while this process simulates the office: on a fresh
     machine compiling costs over a minute of CPU."""
     import subprocess
