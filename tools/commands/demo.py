@@ -46,45 +46,14 @@ finally:
 """
 
 
-# The laser SLAM's and the grids' kernels, compiled beside WARM_UP (which reaches them only after FSPF+ and KOS).
-WARM_UP_LASER = """
-import pathlib, shutil, tempfile
-import numpy as np
-from mapping.config import Config
-from mapping.slam import build_map, run_slam
-from tools.simulate import SimConfig, load_world, simulate
-from tools.simulate.world import PathSpec
-d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-laser-"))
-try:
-    w = load_world("room")
-    laps = PathSpec(np.vstack([w.path.waypoints[:5]] * 3))
-    simulate(w, SimConfig(depth_rate=0.2, laser_rate=5.0, speed_min=0.6, speed_max=0.6), d / "room.mcap", laps)
-    build_map(run_slam(d / "room.mcap", Config(), source="laser", keep_scans=True))
-finally:
-    shutil.rmtree(d, ignore_errors=True)
-"""
-
-
-class _WarmUp:
-    """The warm-up processes, waited for together."""
-
-    def __init__(self, procs) -> None:
-        self.procs = procs
-
-    def wait(self) -> None:
-        for p in self.procs:
-            p.wait()
-
-
-def warm_up() -> _WarmUp:
-    """Small builds of the room in other processes, so that numba compiles (and caches) every kernel of the
-    pipeline while this process simulates the office: on a fresh machine compiling costs over a minute of CPU.
-    WARM_UP (three laps, so that both SLAMs search for loops) takes every stage in order; WARM_UP_LASER compiles
-    the laser SLAM's and the grids' kernels at the same time."""
+def warm_up():
+    """A small build of the room (three laps, so that both SLAMs search for loops) in another process, so that numba
+    compiles (and caches) every kernel of the pipeline while this process simulates the office: on a fresh
+    machine compiling costs over a minute of CPU."""
     import subprocess
 
-    return _WarmUp([subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-                                     cwd=str(REPO)) for code in (WARM_UP, WARM_UP_LASER)])
+    return subprocess.Popen([sys.executable, "-c", WARM_UP], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            cwd=str(REPO))
 
 
 def demo_log(cache: Path | None = None, fresh: bool = False, quiet: bool = False,
