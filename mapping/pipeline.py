@@ -88,10 +88,10 @@ class SlamFeed:
         if self.use_imu:
             self.slam.add_imu(rec)
 
-    def push(self, stamp_ns: int, points: np.ndarray, deskew: tuple | None = None) -> None:
-        """A scan's points (base_link); `deskew` = (scan, mount, min_range, max_range) for a scan taken beam by beam
-        (time_increment > 0): once the odometry around its stamp is in, its points are made again de-skewed with
-        the odometry's twist (frontend/deskew.py)."""
+    def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
+        """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
+        beam by beam (time_increment > 0): its points are made once the odometry around its stamp is in,
+        de-skewed with the odometry's twist (frontend/deskew.py) when there is one."""
         self.pending.append((int(stamp_ns), points, deskew))
 
     def advance(self, now_ns: int | None) -> None:
@@ -107,11 +107,11 @@ class SlamFeed:
             odom = self._odom_at(stamp) if self.use_odom else None
             if self.use_odom and odom is None:
                 self.no_odom += 1
-            if deskew is not None and self.use_odom:
+            if deskew is not None:
                 scan, mount, lo, hi = deskew
-                twist = self.wheel.twist_at(stamp, mount)
-                if twist is not None:
-                    pts = scan_to_points(scan, mount, lo, hi, twist)
+                twist = self.wheel.twist_at(stamp, mount) if self.use_odom else None
+                pts = (scan_to_points(scan, mount, lo, hi, twist) if twist is not None
+                       else scan_points_base(scan.ranges, scan.angles, scan.valid(), mount, lo, hi))
             self.slam.add_scan(stamp, pts, odom)
             self.added += 1
             self.wheel.drop_before(stamp - int(2e9))
@@ -538,9 +538,11 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         state["last_laser"] = scan.stamp_ns
         state["laser_kept"] += 1
         o = laser_feed.slam.ocfg
-        laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), state["laser_mount"],
-                                                        o.min_range, o.max_range),
-                        (scan, state["laser_mount"], o.min_range, o.max_range) if o.deskew and scan.time_increment > 0 else None)
+        if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
+            laser_feed.push(scan.stamp_ns, None, (scan, state["laser_mount"], o.min_range, o.max_range))
+        else:
+            laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), state["laser_mount"],
+                                                            o.min_range, o.max_range))
         if not det.depth:
             tick()
 

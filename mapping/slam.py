@@ -478,8 +478,8 @@ def kos_odometry_config(cfg) -> OdometryConfig:
 # gyro_bias_every 0: the scale-and-bias calibration above serves; re-estimating the bias every 50 nodes feeds a poorly
 # determined early bias into the front end's yaw (office 90 s slice: ATE 0.021 → 0.039 m; whole office mixed).
 # gyro_bias_walk_deg_s 0.0005 (the laser's 0.002 lets the bias follow the narrow scans' weak yaw): replayed KOS scans
-# (tools/bench_kos_slam.py), 10 Hz, ATE 0.002 → 0.0005: office seed 0 0.030 → 0.036 m, seed 1 0.032 → 0.026 m,
-# the 23-minute office survey 0.76 → 0.25 m. Wider loop windows (3 m, radius 8 m) took the survey to 0.09 m but
+# (tools/bench_kos_slam.py), 10 Hz, ATE with a walk of 0.002 → 0.0005 °/s/√s: office seed 0 0.030 → 0.036 m, seed 1
+# 0.032 → 0.026 m, the 23-minute office survey 0.76 → 0.25 m (full build runs: seed 0 0.039 m, survey 0.218 m). Wider loop windows (3 m, radius 8 m) took the survey to 0.09 m but
 # doubled seed 0's error (0.066 m): left as they are.
 KOS_GRAPH = {"odom_sigma_xy": 0.005, "odom_sigma_xy_per_m": 0.02, "calibrate_every": 300, "imu_frontend": True,
              "gyro_bias_every": 0, "gyro_bias_walk_deg_s": 0.0005}
