@@ -250,11 +250,12 @@ class Slam:
             # prediction (a narrow scan sees nothing along a corridor), so an uncorrected scale biases the matches
             # themselves and the final estimate towards 1 (synthetic ring, 3 % injected: 1.014 found; the front end
             # fed the true scale: 1.031, ATE 0.13 → 0.02 m)
-            g.calibrate()
+            g.calibrate(rebase=self.gcfg.calibrate_rebase)
             self.calibrations += 1
         elif (self.gcfg.gyro_bias_every and self.gcfg.gyro_bias == "estimate" and self.imu_stats["factors"]
               and kf.id % self.gcfg.gyro_bias_every == 0):
-            g.calibrate(scale=False)  # the gyro bias only: later gyro factors and predictions subtract it
+            # the gyro bias only: later gyro factors and predictions subtract it
+            g.calibrate(scale=False, rebase=self.gcfg.calibrate_rebase)
             self.calibrations += 1
         self.t["graph"] += time.perf_counter() - t2
 
