@@ -365,6 +365,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                 results[name] = slam.finish()
             except KosmapError as e:
                 warnings.append(f"{name} SLAM produced no trajectory: {e}")
+                continue
+            warnings.extend(f"{name} SLAM: {w}" for w in results[name].warnings)  # the gyro's, the heading priors'
         slam_finish_s = time.perf_counter() - t_slam
         if not results:
             raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
