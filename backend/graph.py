@@ -77,6 +77,9 @@ class GraphConfig(StageConfig):
     odom_scale_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="prior σ of the odometry scale around 1")
     gyro_bias_every: int = param(50, lo=0, doc="with a gyro, re-estimate its bias every n nodes while running (0: only in the final solve): an unmodelled bias drifts the running estimate the loop search starts from")
     calibrate_every: int = param(0, lo=0, doc="re-estimate the odometry scale and gyro bias every n nodes while running (0: only in the final solve); the front end's prediction and new factors use them")
+    manhattan: bool = param(False, doc="heading priors from walls along the building's two perpendicular axes (backend/manhattan.py): a keyframe whose straight walls lie within manhattan_gate_deg of them is held at that heading; off by itself when the first walls do not share two axes")
+    manhattan_sigma_deg: float = param(1.0, lo=0.0, lo_open=True, doc="σ of a heading prior (robust kernel)", unit="deg")
+    manhattan_gate_deg: float = param(5.0, lo=0.0, lo_open=True, doc="walls farther than this off the axes make no prior", unit="deg")
     calibrate_rebase: bool = param(True, doc="each calibration while running also re-solves the graph with the new scale and bias and restarts ISAM2 from there (else only later factors use them)")
     imu: bool = param(True, doc="use the log's gyro (sensor_msgs/Imu yaw rate) when it has one")
     imu_frontend: bool = param(False, doc="the front end's motion prediction takes its yaw from the gyro (translation from the wheels); on for KOS (mapping.slam.KOS_GRAPH), off for a laser (simulated office, 40 Hz laser: ATE 0.028 m off, 0.044 m on)")
@@ -204,7 +207,11 @@ class PoseGraph:
         self.pending_values.insert(i, gtsam.Pose2(*map(float, guess)))
         self.initial.insert(i, gtsam.Pose2(*map(float, guess)))
         if i == 0:
-            self._add("prior", 0, 0, np.asarray(guess, dtype=float), np.array([1e-4, 1e-4, 1e-5]), robust=False)
+            # with heading priors the building's axes fix the yaw, not the first node (optimize() turns the solution
+            # back so that it starts where it was put): held tight, the first node and the axes taken from the first
+            # walls would disagree by the error in those (simulated office: 0.3–0.7°)
+            yaw_sigma = 1.0 if self.cfg.manhattan else 1e-5
+            self._add("prior", 0, 0, np.asarray(guess, dtype=float), np.array([1e-4, 1e-4, yaw_sigma]), robust=False)
         self.n_pending_nodes += 1
         return i
 
@@ -223,7 +230,7 @@ class PoseGraph:
         if cov is not None:
             sigmas = np.sqrt(np.diag(cov))
         fm = meas if online is None else online  # the factor's measurement (calibrated); the edge keeps the raw one
-        if kind == "prior":
+        if kind in ("prior", "heading"):
             f = gtsam.PriorFactorPose2(a, gtsam.Pose2(*map(float, fm)), model)
         else:
             f = gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(*map(float, fm)), model)
@@ -265,6 +272,12 @@ class PoseGraph:
         xy = np.zeros(2) if rel_xy is None else np.asarray(rel_xy, dtype=float)[:2]
         self._add("gyro", a, b, np.array([xy[0], xy[1], dyaw]), np.array([1e3, 1e3, self.gyro_sigma(dt, False)]),
                   robust=False, dt=dt, online=np.array([xy[0], xy[1], dyaw - self.gyro_bias * dt]))
+
+    def add_heading(self, a: int, yaw: float) -> None:
+        """A heading prior on node a (backend/manhattan.py): yaw only (x, y σ of a kilometre), under the robust kernel."""
+        x, y = self.est[a, :2]
+        self._add("heading", a, a, np.array([x, y, yaw]), np.array([1e3, 1e3, math.radians(self.cfg.manhattan_sigma_deg)]),
+                  robust=True)
 
     def add_loop(self, a: int, b: int, rel: np.ndarray, score: float = float("nan"), sigmas: np.ndarray | None = None) -> None:
         """A loop constraint: pose of b in a's frame, under the robust kernel."""
@@ -323,7 +336,18 @@ class PoseGraph:
         if result.exists(SCALE_KEY):
             self.odom_scale = float(result.atVector(SCALE_KEY)[0])
         self._read_biases(result)
+        if self.cfg.manhattan and self.n:
+            self._regauge()
         return {"error_before": float(before), "error_after": float(graph.error(result))}
+
+    def _regauge(self) -> None:
+        """Move the whole solution rigidly so that the first node is where it was put (its prior's pose): the same
+        relative poses, in the frame the run started in."""
+        from frontend import se2
+
+        start = next(np.asarray(e.measurement, dtype=float) for e in self.edges if e.kind == "prior" and e.a == 0)
+        rel = se2.between(np.repeat(self.est[:1], self.n, 0), self.est)
+        self.est[:] = se2.compose(np.repeat(start[None], self.n, 0), rel)
 
     def calibrate(self, max_iterations: int = 5, scale: bool = True, rebase: bool = False) -> None:
         """Re-estimate the odometry scale and the gyro bias from every factor so far (Gauss–Newton from the
@@ -457,7 +481,7 @@ class PoseGraph:
         from backend.trajio import write_g2o
 
         return write_g2o(path, self.est, [(e.a, e.b, e.measurement, e.sigmas if e.cov is None else e.cov, e.kind)
-                                          for e in self.edges if e.kind != "prior"])
+                                          for e in self.edges if e.kind not in ("prior", "heading")])
 
 
 def _gauss_newton(graph, values, max_iterations: int = 20, rtol: float = 1e-6):

@@ -279,11 +279,13 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
         rows = []
         for k, s in slam.items():
             sec = s.get("seconds", {})
+            hd = s.get("heading")
             rows.append([f"{'KOS' if k == 'kos' else 'laser'} SLAM", s["scans"], s["keyframes"], s["loops"],
+                         "off" if not hd else (hd["priors"] if not hd["disabled"] else "not Manhattan"),
                          _f(s.get("ate", {}).get("rmse"), 3), _f(s.get("ate", {}).get("max"), 3),
                          _f(s.get("ate_frontend", {}).get("rmse"), 3), _f(s.get("ate_odometry", {}).get("rmse"), 3),
                          _f(sum(v for v in sec.values()), 1)])
-        B.append(("table", ["source", "scans", "keyframes", "loops", "ATE RMSE (m)", "ATE max (m)",
+        B.append(("table", ["source", "scans", "keyframes", "loops", "heading priors", "ATE RMSE (m)", "ATE max (m)",
                             "front end alone (m)", "wheel odometry (m)", "SLAM time (s)"], rows))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))

@@ -37,6 +37,8 @@ def test_kos_slam_on_a_simulated_room_beats_wheel_odometry(room_log, tmp_path, c
     # per-wheel odometry errors 0.016 m vs 0.059 m
     assert slam <= 0.7 * odom, (slam, odom)
     assert slam <= 0.04, m["ate"]
+    hd = m["run"]["heading"]  # a rectangular room: its walls give the heading (backend/manhattan.py)
+    assert not hd["disabled"] and hd["priors"] == m["run"]["factors"]["heading"] > 0.5 * m["run"]["keyframes"], hd
 
 
 @pytest.mark.slow

@@ -74,6 +74,9 @@ def register(app: typer.Typer) -> None:
         run = summary(result)  # what the graph calibrated (issue #9): the wheels' distance scale, the gyro's bias
         cal = ([f"wheel odometry distance scale {run['odometry_scale']:.4f}"] if run.get("odometry_scale") is not None else []) + \
               ([f"gyro bias {run['gyro_bias_deg_s']:+.4f} °/s"] if run.get("gyro_bias_deg_s") is not None else [])
+        hd = run.get("heading")
+        if hd and hd["priors"]:
+            cal.append(f"building axes {hd['axis_deg']:+.2f}° (heading priors on {hd['priors']} of {run['keyframes']} keyframes)")
         if cal:
             print("estimated: " + ", ".join(cal))
         for w in result.warnings:
