@@ -72,9 +72,9 @@ class ManhattanHeading:
     """Heading priors from wall directions: `observe` per keyframe → the yaw to hold it at, or None."""
 
     gate_deg: float = 5.0
-    init_keyframes: int = 10  # keyframes with walls that fix the axes
-    init_agree_deg: float = 2.0  # … every one of them within this of the axes (after their current estimates)
-    init_share: float = 0.8  # … or this share of them
+    init_keyframes: int = 10  # keyframes with walls that fix the axes (their walls at their current estimates) …
+    init_agree_deg: float = 2.0  # … a keyframe agreeing with the axes when its walls lie within this of them …
+    init_share: float = 0.8  # … and at least this share of the keyframes agreeing
     init_max_keyframes: int = 60  # give up (not Manhattan) when no consistent axes are found by then
     stats: ManhattanStats = field(default_factory=ManhattanStats)
     _seen: list = field(default_factory=list)
