@@ -67,9 +67,11 @@ def record(log: Path, rate: float, cache: Path) -> dict:
                 events.append(("i", rec.stamp_ns, rec.yaw_rate))
             super().imu(rec)
 
-        def push(self, stamp_ns, pts):
-            events.append(("p", int(stamp_ns), np.asarray(pts, np.float32)))
-            super().push(stamp_ns, pts)
+        def push(self, stamp_ns, pts, deskew=None):
+            # as given (float64): float32 copies made the replay diverge from the run it recorded (the survey: 0.76 m
+            # replayed against 0.36 m run); the build's own feed recorded as given replayed exactly (0.2177 m both)
+            events.append(("p", int(stamp_ns), np.array(pts)))
+            super().push(stamp_ns, pts, deskew)
 
         def advance(self, now):
             if not events or events[-1] != ("a", now):
