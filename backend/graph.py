@@ -23,6 +23,7 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
+from frontend import se2
 from frontend.params import StageConfig, param
 
 
@@ -230,10 +231,7 @@ class PoseGraph:
         if cov is not None:
             sigmas = np.sqrt(np.diag(cov))
         fm = meas if online is None else online  # the factor's measurement (calibrated); the edge keeps the raw one
-        if kind in ("prior", "heading"):
-            f = gtsam.PriorFactorPose2(a, gtsam.Pose2(*map(float, fm)), model)
-        else:
-            f = gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(*map(float, fm)), model)
+        f = _factor(kind, a, b, fm, model)
         self.pending.add(f)
         self.all_factors.add(f)
         self.factors.append(f)
@@ -255,8 +253,7 @@ class PoseGraph:
         d = math.hypot(rel[0], rel[1])
         sxy = c.odom_sigma_xy + c.odom_sigma_xy_per_m * d
         syaw = math.radians(c.odom_sigma_yaw_deg) + c.odom_sigma_yaw_per_rad * abs(rel[2])
-        cal = np.array([rel[0] / self.odom_scale, rel[1] / self.odom_scale, rel[2]])
-        self._add("odom", a, b, rel, np.array([sxy, sxy, syaw]), robust=False, online=cal)
+        self._add("odom", a, b, rel, np.array([sxy, sxy, syaw]), robust=False, online=self._calibrated("odom", rel))
 
     def gyro_sigma(self, dt: float, bias_estimated: bool) -> float:
         """σ of a gyro yaw increment over dt: N²·Δt + (σ_b·Δt)² (when the bias is not a variable) + floor²."""
@@ -270,8 +267,18 @@ class PoseGraph:
         """The gyro's integrated yaw a → b (bias not removed): a yaw-only constraint. Online (ISAM2) a Pose2
         between factor with x/y σ of a kilometre and the bias in its σ; in the final solve a factor on the bias."""
         xy = np.zeros(2) if rel_xy is None else np.asarray(rel_xy, dtype=float)[:2]
-        self._add("gyro", a, b, np.array([xy[0], xy[1], dyaw]), np.array([1e3, 1e3, self.gyro_sigma(dt, False)]),
-                  robust=False, dt=dt, online=np.array([xy[0], xy[1], dyaw - self.gyro_bias * dt]))
+        meas = np.array([xy[0], xy[1], dyaw])
+        self._add("gyro", a, b, meas, np.array([1e3, 1e3, self.gyro_sigma(dt, False)]), robust=False, dt=dt,
+                  online=self._calibrated("gyro", meas, dt))
+
+    def _calibrated(self, kind: str, meas: np.ndarray, dt: float = float("nan"), bias: float | None = None):
+        """What an odometry or gyro factor measures under the current calibration: the wheels' translation over the
+        odometry scale, the gyro's yaw less bias·dt (`bias`: its block's; default the latest); None for other kinds."""
+        if kind == "odom":
+            return np.array([meas[0] / self.odom_scale, meas[1] / self.odom_scale, meas[2]])
+        if kind == "gyro":
+            return np.array([meas[0], meas[1], meas[2] - (self.gyro_bias if bias is None else bias) * dt])
+        return None
 
     def add_heading(self, a: int, yaw: float) -> None:
         """A heading prior on node a (backend/manhattan.py): yaw only (x, y σ of a kilometre), under the robust kernel."""
@@ -343,8 +350,6 @@ class PoseGraph:
     def _regauge(self) -> None:
         """Move the whole solution rigidly so that the first node is where it was put (its prior's pose): the same
         relative poses, in the frame the run started in."""
-        from frontend import se2
-
         start = next(np.asarray(e.measurement, dtype=float) for e in self.edges if e.kind == "prior" and e.a == 0)
         rel = se2.between(np.repeat(self.est[:1], self.n, 0), self.est)
         self.est[:] = se2.compose(np.repeat(start[None], self.n, 0), rel)
@@ -376,17 +381,11 @@ class PoseGraph:
         biases = self.gyro_biases
         fs = gtsam.NonlinearFactorGraph()
         for i, e in enumerate(self.edges):
-            f = self.factors[i]
-            if e.kind == "odom":
-                m = e.measurement
-                f = gtsam.BetweenFactorPose2(e.a, e.b, gtsam.Pose2(m[0] / self.odom_scale, m[1] / self.odom_scale, m[2]),
-                                             f.noiseModel())
-            elif e.kind == "gyro":
-                b = biases[blocks[i]] if blocks[i] < len(biases) else self.gyro_bias
-                m = e.measurement
-                f = gtsam.BetweenFactorPose2(e.a, e.b, gtsam.Pose2(m[0], m[1], m[2] - b * e.dt), f.noiseModel())
-            self.factors[i] = f
-            fs.add(f)
+            online = self._calibrated(e.kind, e.measurement, e.dt,
+                                      biases[blocks[i]] if 0 <= blocks[i] < len(biases) else None)
+            if online is not None:
+                self.factors[i] = _factor(e.kind, e.a, e.b, online, self.factors[i].noiseModel())
+            fs.add(self.factors[i])
         self.all_factors = fs
         poses = gtsam.Values()
         for i in range(self.n):
@@ -466,8 +465,6 @@ class PoseGraph:
 
     def loop_residuals(self) -> list[tuple[Edge, float, float]]:
         """(loop edge, translation m, yaw rad) disagreement with the current estimate, per loop."""
-        from frontend import se2
-
         out = []
         for e in self.edges:
             if e.kind == "loop":
@@ -504,6 +501,13 @@ def _gauss_newton(graph, values, max_iterations: int = 20, rtol: float = 1e-6):
         if done:
             break
     return values
+
+
+def _factor(kind: str, a: int, b: int, meas, model):
+    """The gtsam factor of an edge: a prior on node a (prior, heading) or a between factor a → b."""
+    if kind in ("prior", "heading"):
+        return gtsam.PriorFactorPose2(a, gtsam.Pose2(*map(float, meas)), model)
+    return gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(*map(float, meas)), model)
 
 
 def _isam() -> gtsam.ISAM2:
