@@ -8,6 +8,7 @@ import numpy as np
 
 from numba import njit
 
+from frontend import se2
 from frontend.deskew import deskew_points, sensor_twist
 from frontend.params import StageConfig, param
 
@@ -243,8 +244,7 @@ class GridBuilder:
         use = hit | (no_return & (length > 0))
         if twist is not None and scan.time_increment > 0:
             local = deskew_points(length, scan.angles, scan.time_increment, twist[0], twist[1])[use]
-            c, s = np.cos(sth), np.sin(sth)
-            ends = np.column_stack((sx + c * local[:, 0] - s * local[:, 1], sy + s * local[:, 0] + c * local[:, 1]))
+            ends = se2.transform_points((sx, sy, sth), local)
         else:
             a = scan.angles[use] + sth
             ends = np.column_stack((sx + length[use] * np.cos(a), sy + length[use] * np.sin(a)))
