@@ -418,6 +418,11 @@ def markdown(doc: dict) -> str:
     return "\n".join(L)
 
 
+def _keyframes(r: dict) -> int:
+    """Keyframes of both SLAMs in a run."""
+    return sum((v or {}).get("keyframes") or 0 for v in r.get("slam", {}).values())
+
+
 def memory_section(doc: dict) -> list[str]:
     """Peak resident memory by phase, the previous run's beside it, and the growth from the shortest to the longest
     log per minute of log and per SLAM keyframe."""
@@ -436,7 +441,7 @@ def memory_section(doc: dict) -> list[str]:
         mem = r.get("memory") or {}
         main = mem.get("peak_rss_mb_main") or {}
         pv = r.get("previous") or {}
-        kf = sum((v or {}).get("keyframes") or 0 for v in r.get("slam", {}).values())
+        kf = _keyframes(r)
         load = r.get("load_avg_1min")
         fmt = lambda v: f"{v:.0f}" if isinstance(v, (int, float)) else "–"  # noqa: E731
         qs = r.get("rss_during_pass1") or {}
@@ -458,8 +463,7 @@ def memory_section(doc: dict) -> list[str]:
         a, b = rs[0], rs[-1]
         pa = ((a.get("memory") or {}).get("peak_rss_mb_main") or {}).get("after_read")
         pb = ((b.get("memory") or {}).get("peak_rss_mb_main") or {}).get("after_read")
-        ka = sum((v or {}).get("keyframes") or 0 for v in a.get("slam", {}).values())
-        kb = sum((v or {}).get("keyframes") or 0 for v in b.get("slam", {}).values())
+        ka, kb = _keyframes(a), _keyframes(b)
         if pa is None or pb is None or kb <= ka:
             continue
         dm = b["minutes"] - a["minutes"]
