@@ -534,7 +534,8 @@ def fuse_with_laser(laser: Scan, laser_mount: Transform, obstacle: Scan, topic: 
     r = obstacle.ranges[ok].astype(np.float64)
     a = obstacle.angles[ok]
     pts = np.column_stack((r * np.cos(a), r * np.sin(a), np.zeros_like(r)))
-    local = laser_mount.inverse().apply(pts)
+    m = laser_mount.matrix()  # base_link ← laser; its inverse applied as Rᵀ(p − t) (inverse() cost ~1 ms a step)
+    local = (pts - m[:3, 3]) @ m[:3, :3]
     fused = laser.ranges.astype(np.float32).copy()
     if len(local):
         rr = np.hypot(local[:, 0], local[:, 1]).astype(np.float32)

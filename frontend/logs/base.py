@@ -79,6 +79,14 @@ class LogReader(ABC):
                 return None
         return rec
 
+    def _undecodable(self, topic: str, t_ns: int, err: Exception) -> None:
+        """A message whose bytes do not decode as its type (damage inside a chunk): skipped, one warning a topic."""
+        bad = self.__dict__.setdefault("_bad_msgs", {})
+        if topic not in bad:
+            self._warn(f"a message on {topic} at t={t_ns * 1e-9:.3f} s does not decode ({type(err).__name__}: {err}); "
+                       f"such messages are skipped: the log is damaged there, check it with `mcap doctor` or `rosbag check`")
+        bad[topic] = bad.get(topic, 0) + 1
+
     def _warn(self, text: str) -> None:
         if text not in self.warnings:
             self.warnings.append(text)

@@ -6,17 +6,22 @@ STACK.md), so only the container is read with `mcap`.
 
 from __future__ import annotations
 
+import struct
 from collections.abc import Iterable, Iterator
 
 from mcap.exceptions import McapError
 from mcap.reader import NonSeekingReader, make_reader
+from rosbags.serde import SerdeError
 from rosbags.typesys import get_types_from_msg
+from zstandard import ZstdError
 
 from frontend.errors import LogError
 from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
 from frontend.logs.convert import to_record, typestore
+from frontend.logs.readahead import read_ahead
 
-_DAMAGE = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, __import__("struct").error)
+# what a damaged file raises inside mcap: bad lengths (OverflowError, struct.error), bad chunks (ZstdError)
+_DAMAGE = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, OverflowError, struct.error, ZstdError)
 
 
 class McapLog(LogReader):
@@ -36,8 +41,12 @@ class McapLog(LogReader):
             self.truncated = self._summary is None
             self._summary = None
         self._registered: set[tuple[int, str]] = set()
+        self._ahead: list = []  # the read-ahead threads of open reads: stopped before the file closes
 
     def close(self) -> None:
+        for ahead in self._ahead:
+            ahead.close()
+        self._ahead.clear()
         self._file.close()
 
     # -- decoding --------------------------------------------------------------------------------------------------
@@ -58,7 +67,11 @@ class McapLog(LogReader):
             self._registered.add((schema.id, enc))
         if msgtype not in ts.fielddefs:
             return None
-        msg = ts.deserialize_cdr(message.data, msgtype) if enc == "cdr" else ts.deserialize_ros1(message.data, msgtype)
+        try:
+            msg = ts.deserialize_cdr(message.data, msgtype) if enc == "cdr" else ts.deserialize_ros1(message.data, msgtype)
+        except (SerdeError, struct.error, IndexError, ValueError) as e:
+            self._undecodable(channel.topic, message.log_time, e)
+            return None
         return to_record(msg, msgtype, channel.topic)
 
     def _linear(self, topics) -> Iterator[tuple]:
@@ -85,10 +98,18 @@ class McapLog(LogReader):
             return
         self._file.seek(0)
         reader = make_reader(self._file)
+        # chunks are read and decompressed on a thread, ≤ ~4 MB of messages ahead (frontend/logs/readahead.py).
+        # Not log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory)
+        ahead = read_ahead(reader.iter_messages(topics=topics, log_time_order=True), size=lambda m: len(m[2].data))
+        self._ahead.append(ahead)
         try:
-            yield from reader.iter_messages(topics=topics, log_time_order=True)
+            yield from ahead
         except _DAMAGE as e:
             raise LogError(f"{self.path.name} is damaged inside ({type(e).__name__}: {e}); run `mcap doctor` on it") from e
+        finally:
+            ahead.close()
+            if ahead in self._ahead:
+                self._ahead.remove(ahead)
 
     # -- interface -------------------------------------------------------------------------------------------------
     def info(self) -> LogInfo:

@@ -1,0 +1,144 @@
+"""Reading ahead on a thread gives the same items in the same order, raises what the source raised where it raised
+it, and leaves no thread behind however the reader stops."""
+
+from __future__ import annotations
+
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from frontend.errors import LogError
+from frontend.logs import open_log
+from frontend.logs.readahead import read_ahead
+from frontend.logs.writer import McapWriter
+from tests.frontend.synthetic_log import records
+
+
+def _threads() -> int:
+    return sum(t.name == "kosmap-read-ahead" for t in threading.enumerate())
+
+
+def test_same_items_in_order_across_batches():
+    src = list(range(10_000))
+    assert list(read_ahead(iter(src), size=lambda x: 7, batch=100, depth=2)) == src
+    assert list(read_ahead(iter([]))) == []
+    assert _threads() == 0
+
+
+def test_an_error_comes_after_the_items_before_it():
+    def gen():
+        yield from range(5)
+        raise ValueError("damaged at 5")
+
+    got = []
+    with pytest.raises(ValueError, match="damaged at 5"):
+        for x in read_ahead(gen(), batch=2):
+            got.append(x)
+    assert got == [0, 1, 2, 3, 4]
+    assert _threads() == 0
+
+
+def test_closing_early_stops_the_thread_and_closes_the_source():
+    closed = []
+
+    def endless():
+        try:
+            i = 0
+            while True:
+                yield i
+                i += 1
+        finally:
+            closed.append(True)
+
+    g = read_ahead(endless(), batch=10, depth=2)
+    assert [next(g) for _ in range(25)] == list(range(25))
+    g.close()
+    assert closed == [True]  # closed on the thread that ran it, before close() returned
+    assert _threads() == 0
+
+
+def test_the_source_runs_ahead_of_a_slow_reader():
+    made = []
+
+    def src():
+        for i in range(40):
+            made.append(time.perf_counter())
+            yield i
+
+    g = read_ahead(src(), batch=1, depth=8)
+    assert next(g) == 0
+    time.sleep(0.2)
+    assert len(made) >= 9  # the first item and the 8 batches the queue holds were made while this one slept
+    assert list(g) == list(range(1, 40))
+
+
+def test_mcap_read_matches_and_closing_the_log_mid_read_leaves_no_thread(tmp_path):
+    recs = records(n=30, width=64, height=48)
+    p = tmp_path / "log.mcap"
+    with McapWriter(p, chunk_size=16 << 10) as w:
+        for r in recs:
+            w.write(r)
+    with open_log(p) as log:
+        got = list(log.read())
+    assert [(r.topic, r.stamp_ns) for r in got] == [(r.topic, r.stamp_ns) for r in recs]
+    log = open_log(p)
+    it = log.read()
+    next(it)  # a read abandoned half-way (an exception in the caller's loop) ...
+    log.close()  # ... is stopped when the log closes, before its file does
+    assert _threads() == 0
+
+
+def test_damage_is_a_log_error_or_a_warning(tmp_path):
+    p = tmp_path / "log.mcap"
+    with McapWriter(p, chunk_size=16 << 10) as w:
+        for r in records(n=30, width=64, height=48):
+            w.write(r)
+    data = bytearray(p.read_bytes())
+    errors, warned = set(), 0
+    for k in range(2, 38):  # bytes overwritten across the file: each read ends normally or with a LogError
+        d = bytearray(data)
+        at = len(d) * k // 40
+        d[at:at + 64] = bytes(range(64))
+        q = tmp_path / f"d{k}.mcap"
+        q.write_bytes(d)
+        try:
+            with open_log(q) as log:
+                list(log.read())
+                warned += any("does not decode" in w for w in log.warnings)  # a message's bytes: it is skipped
+        except LogError as e:  # the chunks' structure
+            errors.add(str(e).split("(")[0])
+    assert errors and warned, (errors, warned)
+    assert all("damaged inside" in e for e in errors)
+    assert _threads() == 0
+
+
+@pytest.mark.parametrize("late_s", [0.4, 5.0])
+def test_mcap_order_is_log_time_order_when_written_out_of_order(tmp_path, late_s):
+    from mcap.reader import make_reader
+
+    from frontend.logs import convert
+
+    rng = np.random.default_rng(3)
+    recs = records(n=60, width=32, height=24)
+    ts = convert.typestore(2)
+    t0 = recs[0].stamp_ns
+    # log times out of order: every fifth message late by up to late_s, written where it arrived
+    log_t = [t0 + i * 10_000_000 + (int(rng.uniform(0, late_s) * 1e9) if i % 5 == 3 else 0) for i in range(len(recs))]
+    write_order = sorted(range(len(recs)), key=lambda i: (t0 + i * 10_000_000, i))  # the order of arrival
+    p = tmp_path / "late.mcap"
+    with McapWriter(p, chunk_size=8 << 10) as w:
+        for i in write_order:
+            mt, msg = convert.record_msg(ts, recs[i])
+            w.write_msg(recs[i].topic, mt, msg, log_t[i])
+    with open(p, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+        assert len(summary.chunk_indexes) > 10
+        expect = [(c.topic, m.log_time) for _, c, m in make_reader(fh).iter_messages(log_time_order=True)]
+    assert expect != [(recs[i].topic, log_t[i]) for i in write_order]  # the file is out of order
+    assert [t for _, t in expect] == sorted(log_t)
+    by_stamp = {(r.topic, r.stamp_ns): log_t[i] for i, r in enumerate(recs)}
+    with open_log(p) as log:
+        got = [(r.topic, by_stamp[(r.topic, r.stamp_ns)]) for r in log.read()]
+    assert got == expect
