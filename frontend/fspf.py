@@ -289,6 +289,41 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
 
 
 @njit(cache=True)
+def _solve_nb(A, b):
+    """x with A·x = b for a small square A: LU with partial pivoting (LAPACK's dgetf2 + dgetrs, written out;
+    np.linalg.solve's shape checks cost ~5 s of numba compiling on a fresh machine). A and b are overwritten."""
+    n = len(b)
+    piv = np.empty(n, np.int64)
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > abs(A[p, k]):
+                p = i
+        piv[k] = p
+        if p != k:
+            for j in range(n):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+        r = 1.0 / A[k, k]
+        for i in range(k + 1, n):
+            A[i, k] *= r
+        for i in range(k + 1, n):
+            for j in range(k + 1, n):
+                A[i, j] -= A[i, k] * A[k, j]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            b[k], b[p] = b[p], b[k]
+    for i in range(n):
+        for j in range(i):
+            b[i] -= A[i, j] * b[j]
+    for i in range(n - 1, -1, -1):
+        for j in range(i + 1, n):
+            b[i] -= A[i, j] * b[j]
+        b[i] /= A[i, i]
+    return b
+
+
+@njit(cache=True)
 def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
     """True when the plane's inliers among the RANSAC subset bend: a quadratic in the in-plane coordinates
     explains more than r2_max of their residual variance and rises by more than bend_max·ε over them.
@@ -342,7 +377,7 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
         A[i, i] += 1e-9
         for j in range(i):
             A[i, j] = A[j, i]
-    coef = np.linalg.solve(A, b)
+    coef = _solve_nb(A, b)
     rm = np.mean(rs[:m])
     tot = 0.0
     res = 0.0
@@ -1098,9 +1133,12 @@ def filter_planes(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None 
     return run(depth_m, cam, cfg, depth_cfg, mount, seed)
 
 
-def warmup() -> None:
-    """Compile (or load from numba's cache) both kernels on a tiny image."""
+def warmup(method: str | None = None) -> None:
+    """Compile (or load from numba's cache) the kernel of `method` ("fspf+" or "fspf"; None: both) on a tiny image:
+    on a fresh machine FSPF's costs 5 s that a build with FSPF+ never needs."""
     cam = CameraModel.from_fov(16, 12, np.radians(70.0), np.radians(60.0))
     d = np.full((12, 16), 2.0, np.float32)
-    fspf_plus(d, cam, FspfConfig(n_min=3))
-    fspf(d, cam, FspfConfig(fspf_max_neighborhoods=10))
+    if method in (None, "fspf+"):
+        fspf_plus(d, cam, FspfConfig(n_min=3))
+    if method in (None, "fspf"):
+        fspf(d, cam, FspfConfig(fspf_max_neighborhoods=10))

@@ -260,14 +260,11 @@ def classify(normals: np.ndarray, up: np.ndarray, forward: np.ndarray, left: np.
 
 # ---- merging ---------------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
 def moments_from_sums(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(Σp P×3, Σppᵀ P×3×3) from P×9 rows (Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz)."""
-    s = np.ascontiguousarray(m[:, :3])
-    ss = np.empty((len(m), 3, 3))
-    for (a, b), k in zip(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2)), range(3, 9)):
-        ss[:, a, b] = ss[:, b, a] = m[:, k]
-    return s, ss
+    """(Σp P×3, Σppᵀ P×3×3) from P×9 rows (Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz). Plain numpy: a few planes a
+    frame, and compiled it cost a fresh machine 2–4 s of numba."""
+    m = np.asarray(m, np.float64)
+    return m[:, :3].copy(), m[:, [3, 4, 5, 4, 6, 7, 5, 7, 8]].reshape(-1, 3, 3)
 
 
 @njit(cache=True)
@@ -297,55 +294,63 @@ def _moments_nb(points, plane, P):
 
 
 @njit(cache=True)
-def _merge_nb(normals, offsets, cnt, s, ss, cos_max, offset_m):
-    """Greedy merge, largest first: returns each plane's group and the groups' refitted (n, d)."""
+def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
+    """Greedy merge in `order` (largest first): returns each plane's group and the groups' refitted (n, d).
+
+    Written element by element: numba compiles array slices, np.outer and its argsort with shape checks and
+    their error messages, ~8 s of a fresh machine's first run (make demo), for the same arithmetic."""
     P = len(cnt)
-    order = np.argsort(-cnt, kind="mergesort")
     group = np.full(P, -1, np.int64)
     g_cnt = np.zeros(P)
     g_s = np.zeros((P, 3))
     g_ss = np.zeros((P, 3, 3))
     g_n = np.zeros((P, 3))
     g_d = np.zeros(P)
+    c = np.empty(3)
+    cov = np.empty((3, 3))
     G = 0
     for i in order:
         if cnt[i] == 0:
             continue
-        ci = s[i] / cnt[i]
-        ni = normals[i]
+        c0, c1, c2 = s[i, 0] / cnt[i], s[i, 1] / cnt[i], s[i, 2] / cnt[i]
+        n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
         hit = -1
         for g in range(G):
-            if g_n[g, 0] * ni[0] + g_n[g, 1] * ni[1] + g_n[g, 2] * ni[2] < cos_max:
+            if g_n[g, 0] * n0 + g_n[g, 1] * n1 + g_n[g, 2] * n2 < cos_max:
                 continue
-            cg = g_s[g] / g_cnt[g]
-            e1 = abs(g_n[g, 0] * ci[0] + g_n[g, 1] * ci[1] + g_n[g, 2] * ci[2] + g_d[g])
-            e2 = abs(ni[0] * cg[0] + ni[1] * cg[1] + ni[2] * cg[2] + offsets[i])
+            e1 = abs(g_n[g, 0] * c0 + g_n[g, 1] * c1 + g_n[g, 2] * c2 + g_d[g])
+            e2 = abs(n0 * (g_s[g, 0] / g_cnt[g]) + n1 * (g_s[g, 1] / g_cnt[g]) + n2 * (g_s[g, 2] / g_cnt[g]) + offsets[i])
             if e1 < offset_m and e2 < offset_m:
                 hit = g
                 break
+        g = G if hit < 0 else hit
+        group[i] = g
         if hit < 0:
-            group[i] = G
-            g_cnt[G] = cnt[i]
-            g_s[G] = s[i]
-            g_ss[G] = ss[i]
-            g_n[G] = ni
-            g_d[G] = offsets[i]
+            g_cnt[g] = cnt[i]
+            for a in range(3):
+                g_s[g, a] = s[i, a]
+                g_n[g, a] = normals[i, a]
+                for b in range(3):
+                    g_ss[g, a, b] = ss[i, a, b]
+            g_d[g] = offsets[i]
             G += 1
             continue
-        g = hit
-        group[i] = g
         g_cnt[g] += cnt[i]
-        g_s[g] += s[i]
-        g_ss[g] += ss[i]
-        c = g_s[g] / g_cnt[g]
-        cov = g_ss[g] / g_cnt[g] - np.outer(c, c)
+        for a in range(3):
+            g_s[g, a] += s[i, a]
+            for b in range(3):
+                g_ss[g, a, b] += ss[i, a, b]
+        for a in range(3):
+            c[a] = g_s[g, a] / g_cnt[g]
+        for a in range(3):
+            for b in range(3):
+                cov[a, b] = g_ss[g, a, b] / g_cnt[g] - c[a] * c[b]
         _, v = np.linalg.eigh(cov)
-        n = v[:, 0].copy()
-        d = -(n[0] * c[0] + n[1] * c[1] + n[2] * c[2])
+        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+        d = -(nx * c[0] + ny * c[1] + nz * c[2])
         if d < 0:
-            n = -n
-            d = -d
-        g_n[g] = n
+            nx, ny, nz, d = -nx, -ny, -nz, -d
+        g_n[g, 0], g_n[g, 1], g_n[g, 2] = nx, ny, nz
         g_d[g] = d
     return group, g_n[:G].copy(), g_d[:G].copy()
 
@@ -365,10 +370,11 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
     if P <= 1:
         return planes
     cnt, s, ss = moments if moments is not None else _moments_nb(planes.points, planes.plane, P)
+    cnt = np.asarray(cnt, np.float64)
     group, normals, offsets = _merge_nb(np.ascontiguousarray(planes.normals, dtype=np.float64),
-                                        np.ascontiguousarray(planes.offsets, dtype=np.float64),
-                                        np.asarray(cnt, np.float64), s, ss,
-                                        float(np.cos(np.radians(angle_deg))), float(offset_m))
+                                        np.ascontiguousarray(planes.offsets, dtype=np.float64), cnt, s, ss,
+                                        np.argsort(-cnt, kind="stable"), float(np.cos(np.radians(angle_deg))),
+                                        float(offset_m))
     G = len(offsets)
     if G == P:
         return planes

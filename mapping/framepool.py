@@ -44,7 +44,7 @@ def _init_worker(configs: tuple) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     global _CONFIGS
     _CONFIGS = configs
-    warmup()
+    warmup(configs[0].method)
 
 
 def _ping() -> int:
@@ -93,7 +93,7 @@ class FramePool:
         self._slots: mmap.mmap | None = None
         self._n_slots = self.in_flight + 2  # results() leaves at most in_flight + 1 frames outstanding
         self._next_slot = 0
-        warmup()  # compile (or load) the kernels here once: forked workers inherit them instead of compiling each
+        warmup(fspf_cfg.method)  # compile (or load) the kernels here once: forked workers inherit them instead of compiling each
         if self.workers > 0:
             fork = "fork" in mp.get_all_start_methods()
             ctx = mp.get_context("fork") if fork else None

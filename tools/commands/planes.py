@@ -185,7 +185,7 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
         total, frames, warnings = _log_frames(path, cfg, camera_file, depth_scale, every, limit)
     out.mkdir(parents=True, exist_ok=True)
     write_config(cfg, out / "config.toml")
-    warmup()
+    warmup(cfg.fspf.method)
     fig_step = max(1, -(-total // figures)) if figures > 0 else 0
     writer = None
     if mcap:
