@@ -54,6 +54,8 @@ class LogReader(ABC):
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
         self.warnings: list[str] = []
+        self._bad_imu: dict[str, int] = {}  # per topic: IMU samples skipped for non-finite values
+        self._bad_msgs: dict[str, int] = {}  # per topic: messages skipped because their bytes do not decode
 
     @abstractmethod
     def info(self) -> LogInfo:
@@ -71,7 +73,7 @@ class LogReader(ABC):
         if isinstance(rec, Imu):
             why = imu_problem(rec)
             if why is not None:
-                bad = self.__dict__.setdefault("_bad_imu", {})
+                bad = self._bad_imu
                 if rec.topic not in bad:
                     self._warn(f"IMU on {rec.topic} has {why} (first at t={rec.stamp:.3f} s); such samples are "
                                f"skipped: check the IMU driver, or pass --imu-topic none to map without it")
@@ -81,7 +83,7 @@ class LogReader(ABC):
 
     def _undecodable(self, topic: str, t_ns: int, err: Exception) -> None:
         """A message whose bytes do not decode as its type (damage inside a chunk): skipped, one warning a topic."""
-        bad = self.__dict__.setdefault("_bad_msgs", {})
+        bad = self._bad_msgs
         if topic not in bad:
             self._warn(f"a message on {topic} at t={t_ns * 1e-9:.3f} s does not decode ({type(err).__name__}: {err}); "
                        f"such messages are skipped: the log is damaged there, check it with `mcap doctor` or `rosbag check`")

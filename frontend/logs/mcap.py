@@ -44,10 +44,12 @@ class McapLog(LogReader):
         self._ahead: list = []  # the read-ahead threads of open reads: stopped before the file closes
 
     def close(self) -> None:
-        for ahead in self._ahead:
-            ahead.close()
-        self._ahead.clear()
-        self._file.close()
+        try:
+            for ahead in list(self._ahead):
+                ahead.close()
+        finally:
+            self._ahead.clear()
+            self._file.close()
 
     # -- decoding --------------------------------------------------------------------------------------------------
     def _decode(self, schema, channel, message):
@@ -96,20 +98,23 @@ class McapLog(LogReader):
         if self._summary is None:
             yield from reorder(self._linear(topics), window_ns=2_000_000_000)
             return
-        self._file.seek(0)
-        reader = make_reader(self._file)
-        # chunks are read and decompressed on a thread, ≤ ~4 MB of messages ahead (frontend/logs/readahead.py).
-        # Not log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory)
-        ahead = read_ahead(reader.iter_messages(topics=topics, log_time_order=True), size=lambda m: len(m[2].data))
+        # Chunks are read and decompressed on a thread (frontend/logs/readahead.py): ≤ 4 queued batches of ~1 MB of
+        # messages beside mcap's current chunk. The thread seeks, so each read has its own file handle. Not
+        # log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory).
+        fh = open(self.path, "rb")
+        ahead = read_ahead(make_reader(fh).iter_messages(topics=topics, log_time_order=True), size=lambda m: len(m[2].data))
         self._ahead.append(ahead)
         try:
             yield from ahead
         except _DAMAGE as e:
             raise LogError(f"{self.path.name} is damaged inside ({type(e).__name__}: {e}); run `mcap doctor` on it") from e
         finally:
-            ahead.close()
-            if ahead in self._ahead:
-                self._ahead.remove(ahead)
+            try:
+                ahead.close()
+            finally:
+                fh.close()
+                if ahead in self._ahead:
+                    self._ahead.remove(ahead)
 
     # -- interface -------------------------------------------------------------------------------------------------
     def info(self) -> LogInfo:

@@ -3,6 +3,9 @@
 zstd and lz4 decompression release the GIL, so on the second core they run beside the caller's Python. On a
 Kinect log that is most of reading it: the MCAP's zstd chunks cost `kosmap build`'s main process ~0.04 CPU s per
 second of log, on the thread that also feeds the frame pool and the SLAMs (docs/bench/pipeline.md).
+
+Do not fork while a read-ahead runs (a forked child would inherit its locks held): the build and `kosmap scan`
+start their worker processes before they read.
 """
 
 from __future__ import annotations
@@ -15,6 +18,8 @@ _END = object()
 
 
 class _Raised:
+    """An exception raised on the thread, queued to be raised again by the reader."""
+
     def __init__(self, exc: BaseException) -> None:
         self.exc = exc
 

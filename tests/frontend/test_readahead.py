@@ -59,18 +59,22 @@ def test_closing_early_stops_the_thread_and_closes_the_source():
     assert _threads() == 0
 
 
-def test_the_source_runs_ahead_of_a_slow_reader():
+def test_the_source_runs_ahead_of_a_slow_reader_but_no_further_than_the_queue():
     made = []
 
     def src():
         for i in range(40):
-            made.append(time.perf_counter())
+            made.append(i)
             yield i
 
     g = read_ahead(src(), batch=1, depth=8)
     assert next(g) == 0
+    deadline = time.monotonic() + 30.0
+    while len(made) < 9 and time.monotonic() < deadline:  # made while this reader waits (generous: a loaded machine)
+        time.sleep(0.01)
     time.sleep(0.2)
-    assert len(made) >= 9  # the first item and the 8 batches the queue holds were made while this one slept
+    # the item read, the 8 queued and the one the thread holds waiting for room: ahead, and bounded
+    assert 9 <= len(made) <= 10
     assert list(g) == list(range(1, 40))
 
 
@@ -87,6 +91,23 @@ def test_mcap_read_matches_and_closing_the_log_mid_read_leaves_no_thread(tmp_pat
     it = log.read()
     next(it)  # a read abandoned half-way (an exception in the caller's loop) ...
     log.close()  # ... is stopped when the log closes, before its file does
+    assert _threads() == 0
+
+
+def test_two_reads_of_one_log_at_once(tmp_path):
+    recs = records(n=100, width=256, height=192)  # ~30 MB: more than the read-ahead holds
+    p = tmp_path / "log.mcap"
+    with McapWriter(p, chunk_size=256 << 10) as w:
+        for r in recs:
+            w.write(r)
+    with open_log(p) as log:  # two reads taken in turn, both threads reading ahead: each seeks its own handle
+        a, b = log.read(), log.read()
+        got_a, got_b = [], []
+        for ra, rb in zip(a, b):
+            got_a.append((ra.topic, ra.stamp_ns))
+            got_b.append((rb.topic, rb.stamp_ns))
+    want = [(r.topic, r.stamp_ns) for r in recs]
+    assert got_a == want and got_b == want
     assert _threads() == 0
 
 
