@@ -136,6 +136,17 @@ class LikelihoodField:
 
 
 @njit(cache=True)
+def _grown(out, m, size):
+    """A (size, 2) array starting with the first m rows of `out`: copied element by element, as a slice
+    assignment makes numba compile a shape check with its error message (~5 s on a fresh machine)."""
+    bigger = np.empty((size, 2))
+    for q in range(m):
+        bigger[q, 0] = out[q, 0]
+        bigger[q, 1] = out[q, 1]
+    return bigger
+
+
+@njit(cache=True)
 def _densify(pts, spacing, max_gap, rel):
     n = pts.shape[0]
     if n == 0:
@@ -144,9 +155,7 @@ def _densify(pts, spacing, max_gap, rel):
     m = 0
     for i in range(n):
         if m + 2 >= out.shape[0]:
-            bigger = np.empty((out.shape[0] * 2, 2))
-            bigger[:m] = out[:m]
-            out = bigger
+            out = _grown(out, m, out.shape[0] * 2)
         out[m, 0] = pts[i, 0]
         out[m, 1] = pts[i, 1]
         m += 1
@@ -164,9 +173,7 @@ def _densify(pts, spacing, max_gap, rel):
             continue
         k = int(gap / spacing)
         if m + k + 2 >= out.shape[0]:
-            bigger = np.empty((out.shape[0] * 2 + k + 2, 2))
-            bigger[:m] = out[:m]
-            out = bigger
+            out = _grown(out, m, out.shape[0] * 2 + k + 2)
         for j in range(1, k + 1):
             a = j / (k + 1.0)
             out[m, 0] = ax + a * (bx - ax)
