@@ -98,11 +98,12 @@ class McapLog(LogReader):
         if self._summary is None:
             yield from reorder(self._linear(topics), window_ns=2_000_000_000)
             return
-        # Chunks are read and decompressed on a thread (frontend/logs/readahead.py): ≤ 4 queued batches of ~1 MB of
+        # Chunks are read and decompressed on a thread (frontend/logs/readahead.py): ≤ 2 queued batches of ~0.5 MB of
         # messages beside mcap's current chunk. The thread seeks, so each read has its own file handle. Not
         # log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory).
         fh = open(self.path, "rb")
-        ahead = read_ahead(make_reader(fh).iter_messages(topics=topics, log_time_order=True), size=lambda m: len(m[2].data))
+        ahead = read_ahead(make_reader(fh).iter_messages(topics=topics, log_time_order=True), size=lambda m: len(m[2].data),
+                           batch=512 << 10, depth=2)
         self._ahead.append(ahead)
         try:
             yield from ahead
