@@ -22,6 +22,11 @@ def wrap_quarter(a):
     return (np.asarray(a, dtype=float) + QUARTER / 2) % QUARTER - QUARTER / 2
 
 
+def quarter_mean(a) -> float:
+    """The circular mean of angles modulo 90° (of four times each angle), in [−45°, 45°)."""
+    return float(wrap_quarter(np.angle(np.exp(4j * np.asarray(a, dtype=float)).mean()) / 4.0))
+
+
 def wall_direction(points: np.ndarray, window: int = 32, min_extent: float = 0.3, max_gap: float = 0.15,
                    max_rms: float = 0.01, min_windows: int = 5) -> tuple[float, int] | None:
     """The dominant direction, modulo 90° (rad, [−45°, 45°)), of the straight walls in a scan's points (in bearing
@@ -29,7 +34,7 @@ def wall_direction(points: np.ndarray, window: int = 32, min_extent: float = 0.3
 
     A run is straight when it spans ≥ min_extent, has no gap > max_gap and its points lie within max_rms of their
     principal line; directions are voted in 1° bins modulo 90° (perpendicular walls vote together), and the peak is
-    refined by the circular mean (of four times the angle) of the runs within 3° of it."""
+    refined by the circular mean modulo 90° (quarter_mean) of the runs within 3° of it."""
     p = np.asarray(points, dtype=float)
     if len(p) < window + min_windows:
         return None
@@ -54,8 +59,7 @@ def wall_direction(points: np.ndarray, window: int = 32, min_extent: float = 0.3
     near = np.abs(wrap_quarter(ang - peak)) <= math.radians(3.0)
     if near.sum() < min_windows:
         return None
-    z = np.exp(4j * ang[near]).mean()
-    return float(wrap_quarter(np.angle(z) / 4.0)), int(near.sum())
+    return quarter_mean(ang[near]), int(near.sum())
 
 
 @dataclass
@@ -105,7 +109,7 @@ class ManhattanHeading:
         `init_max_keyframes` without agreement."""
         seen = np.array(self._seen[-self.init_keyframes:])
         if len(seen) >= self.init_keyframes:
-            axis = float(wrap_quarter(np.angle(np.exp(4j * seen).mean()) / 4.0))
+            axis = quarter_mean(seen)
             agree = np.abs(wrap_quarter(seen - axis)) <= math.radians(self.init_agree_deg)
             if agree.mean() >= self.init_share:
                 self._axis = axis
