@@ -38,7 +38,8 @@ def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos
     """FSPF+ (or FSPF) → KOS for one frame (thesis Alg. 3–7); `kos_cfg.source = "depth"` skips plane filtering."""
     t0 = time.perf_counter()
     if kos_cfg.source == "planes":
-        planes = filter_planes(item.depth, item.camera, fspf_cfg, depth_cfg, item.mount, frame_seed(fspf_cfg, item.index))
+        planes = filter_planes(item.depth, item.camera, fspf_cfg, depth_cfg, item.mount, frame_seed(fspf_cfg, item.index),
+                               copy=keep_planes)  # else its arrays are scratch, used only below
         pixels, n_points, stats = planes.pixels, len(planes.points), planes.stats
     else:  # every valid depth point, as depthimage_to_laserscan does
         ok = depth_constraints(item.depth, depth_cfg.min_depth, depth_cfg.max_depth)

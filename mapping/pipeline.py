@@ -30,6 +30,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -375,11 +376,12 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         t_maps = time.perf_counter()
         jobs = _Jobs(workers, pool.executor if pool is not None else None)
         try:
-            grids, traj = _pass2(spill, p1, results, cfg, out, files, bands, jobs)
+            compares = _Compares(bp_grid, cfg, jobs)
+            grids, traj = _pass2(spill, p1, results, cfg, out, files, bands, jobs, compares)
             maps_s = time.perf_counter() - t_maps
             say(f"SLAM solved in {slam_finish_s:.1f} s; {len(grids)} maps built and written in {maps_s:.1f} s")
             t_cmp = time.perf_counter()
-            comparisons, overlays = _compare_all(grids, bp_grid, cfg, out, files, warnings, jobs)
+            comparisons, overlays = compares.finish(out, files, warnings)
             compare_s = time.perf_counter() - t_cmp
         finally:
             jobs.close()
@@ -677,6 +679,9 @@ class _Done:
     def __init__(self, v) -> None:
         self.v = v
 
+    def done(self) -> bool:
+        return True
+
     def result(self):
         return self.v
 
@@ -722,9 +727,10 @@ def _every(stamps: np.ndarray, rate: float) -> np.ndarray:
 
 
 def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files: dict, bands: list[str],
-           jobs: _Jobs) -> tuple[dict, dict]:
+           jobs: _Jobs, compares: _Compares) -> tuple[dict, dict]:
     """Every grid from the spill and the optimised poses (one job per map, while this process writes the MCAP);
-    maps (PNG, PGM+YAML), trajectories (TUM), the MCAP."""
+    maps (PNG, PGM+YAML), trajectories (TUM), the MCAP. Each finished grid starts its comparisons (`compares`)
+    while the MCAP is still being written."""
     from backend.trajio import write_tum
     from mapping.mapio import grid_picture, write_map_server, write_png
 
@@ -771,6 +777,13 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
         series.close()
         futures.append(jobs.submit(_grid_job, cfg.grid, mount, str(series.path), series.width, band, meta, st, poses,
                                    idx))
+    compares.expect([name for name, _, _ in specs])
+
+    def poll() -> None:
+        """Hand every finished grid to the comparisons (called between batches of MCAP messages)."""
+        for (name, _, _), fut in zip(specs, futures):
+            if fut.done():
+                compares.grid_ready(name, fut.result())
 
     for name, tr in traj.items():
         files[f"trajectory_{name}"] = write_tum(out / f"trajectory_{name}.tum", tr["stamps_ns"] * 1e-9, tr["poses"])
@@ -787,6 +800,7 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
     def collect() -> dict:
         for (name, info, _), fut in zip(specs, futures):
             grid = fut.result()
+            compares.grid_ready(name, grid)
             tr = traj.get(info["poses"])
             png = write_png(grid_picture(grid, None if tr is None else tr["poses"]), out / f"map_{name}.png")
             yml = write_map_server(grid, out / f"map_{name}.yaml")
@@ -795,14 +809,15 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
                            "occupied_cells": int((grid.data >= 65).sum()), "known_cells": int((grid.data >= 0).sum())}
         return grids
 
-    files["mcap"] = _write_mcap(out / "kosmap.mcap", spill, p1, results, collect, bands, kos_meta, kos_stamps)
+    files["mcap"] = _write_mcap(out / "kosmap.mcap", spill, p1, results, collect, bands, kos_meta, kos_stamps, poll)
     return grids, traj
 
 
 def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_done: Callable[[], dict],
-                bands: list[str], kos_meta, kos_stamps) -> Path:
+                bands: list[str], kos_meta, kos_stamps, poll: Callable[[], None] = lambda: None) -> Path:
     """One MCAP for Foxglove: KOS scans per level, the laser and fused scans used, plane points (a subsample),
-    map → base_link on /tf (from the KOS SLAM, else the laser's), the paths, and every map."""
+    map → base_link on /tf (from the KOS SLAM, else the laser's), the paths, and every map. `poll` is called
+    between batches of messages."""
     from frontend.logs.writer import McapWriter
 
     primary = "kos" if "kos" in results else "laser"
@@ -822,25 +837,26 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
     with McapWriter(path) as w:
         for rec in p1["statics"]:
             w.write(rec, "/tf_static")
-        for stamp, kind, i in ((t, k, j) for c in range(0, len(order), 4096) for t, k, j in
-                               zip(ev_t[order[c:c + 4096]].tolist(), ev_k[order[c:c + 4096]].tolist(),
-                                   ev_i[order[c:c + 4096]].tolist())):
-            if kind == 0:
-                r = kos_rows.get(i).reshape(len(bands), -1)
-                for k, b in enumerate(bands):
-                    w.write(_scan_of(kos_meta, stamp, r[k]), KOS_PREFIX + b)
-            elif kind == 1:
-                w.write(_scan_of(spill.laser.meta, stamp, laser_rows.get(i)), spill.laser.meta.get("topic") or "/scan")
-            elif kind == 2:
-                w.write(_scan_of(spill.fused.meta, stamp, fused_rows.get(i)), KOS_PREFIX + FUSED)
-            elif kind == 3:
-                _, first, n = spill.cloud_index[i]
-                rows = plane_rows.block(first, n)
-                w.write_pointcloud(PLANES_TOPIC, stamp, "base_link", rows[:, :3], {"class": rows[:, 3]})
-            else:
-                x, y, yaw = pres.poses[i]
-                tf = Transform("map", "base_link", np.array([x, y, 0.0]), yaw_to_quat(float(yaw)), stamp)
-                w.write(Transforms(stamp, (tf,), False, "/tf"), "/tf")
+        for c in range(0, len(order), 1024):
+            poll()
+            sel = order[c:c + 1024]
+            for stamp, kind, i in zip(ev_t[sel].tolist(), ev_k[sel].tolist(), ev_i[sel].tolist()):
+                if kind == 0:
+                    r = kos_rows.get(i).reshape(len(bands), -1)
+                    for k, b in enumerate(bands):
+                        w.write(_scan_of(kos_meta, stamp, r[k]), KOS_PREFIX + b)
+                elif kind == 1:
+                    w.write(_scan_of(spill.laser.meta, stamp, laser_rows.get(i)), spill.laser.meta.get("topic") or "/scan")
+                elif kind == 2:
+                    w.write(_scan_of(spill.fused.meta, stamp, fused_rows.get(i)), KOS_PREFIX + FUSED)
+                elif kind == 3:
+                    _, first, n = spill.cloud_index[i]
+                    rows = plane_rows.block(first, n)
+                    w.write_pointcloud(PLANES_TOPIC, stamp, "base_link", rows[:, :3], {"class": rows[:, 3]})
+                else:
+                    x, y, yaw = pres.poses[i]
+                    tf = Transform("map", "base_link", np.array([x, y, 0.0]), yaw_to_quat(float(yaw)), stamp)
+                    w.write(Transforms(stamp, (tf,), False, "/tf"), "/tf")
         for name, res in results.items():
             step = max(1, len(res.poses) // 2000)
             w.write_path(f"/kosmap/path/{name}", t_end, "map", res.poses[::step], res.stamps_ns[::step])
@@ -868,33 +884,56 @@ def _compare_job(a: OccupancyGrid, b: OccupancyGrid, ccfg) -> tuple[dict | None,
     return c.metrics, overlay_picture(c), None
 
 
-def _compare_all(grids: dict, bp: OccupancyGrid | None, cfg: Config, out: Path, files: dict, warnings: list[str],
-                 jobs: _Jobs) -> tuple[dict, dict]:
-    """KOS vs blueprint, laser vs blueprint, KOS vs laser (and the extra maps vs blueprint), one job each."""
-    from mapping.mapio import write_png
+class _Compares:
+    """KOS vs blueprint, laser vs blueprint, KOS vs laser (and the extra maps vs blueprint), one job each, each
+    submitted as soon as its two maps exist: the workers compare while this process still writes the MCAP
+    (started after every map, they left the workers idle for the MCAP's seconds and this process for theirs)."""
 
-    bcfg = cfg.build
-    kos_main = f"kos_{bcfg.slam_scan}"
-    pairs: list[tuple[str, str]] = []
-    if bp is not None:
-        for name in grids:
-            if name == kos_main or name in ("laser", "fused", "kos_obstacle_at_laser_poses") or \
-                    (bcfg.compare_levels and name.startswith("kos_")):
-                pairs.append((name, "blueprint"))
-    if kos_main in grids and "laser" in grids:
-        pairs.append((kos_main, "laser"))
-    futures = [jobs.submit(_compare_job, grids[a]["grid"], bp if b == "blueprint" else grids[b]["grid"], cfg.compare)
-               for a, b in pairs]
-    comparisons, overlays = {}, {}
-    for (a, b), fut in zip(pairs, futures):
-        key = f"{a}_vs_{b}"
-        metrics, img, err = fut.result()
-        if err is not None:
-            warnings.append(f"{key}: {err}")
-            continue
-        comparisons[key] = {"a": a, "b": b, **metrics}
-        overlays[key] = files[f"overlay_{key}"] = write_png(img, out / f"overlay_{key}.png")
-    return comparisons, overlays
+    def __init__(self, bp: OccupancyGrid | None, cfg: Config, jobs: _Jobs) -> None:
+        self.bp, self.cfg, self.jobs = bp, cfg, jobs
+        self.pairs: list[tuple[str, str]] = []
+        self.grids: dict[str, OccupancyGrid] = {}
+        self.futures: dict[tuple[str, str], Any] = {}
+
+    def expect(self, names: list[str]) -> None:
+        """The maps pass 2 will make, in its order: they fix the pairs and the order of the results."""
+        bcfg = self.cfg.build
+        kos_main = f"kos_{bcfg.slam_scan}"
+        self.pairs = []
+        if self.bp is not None:
+            for name in names:
+                if name == kos_main or name in ("laser", "fused", "kos_obstacle_at_laser_poses") or \
+                        (bcfg.compare_levels and name.startswith("kos_")):
+                    self.pairs.append((name, "blueprint"))
+        if kos_main in names and "laser" in names:
+            self.pairs.append((kos_main, "laser"))
+
+    def grid_ready(self, name: str, grid: OccupancyGrid) -> None:
+        """Submit every comparison whose maps are now all there."""
+        self.grids[name] = grid
+        for a, b in self.pairs:
+            ready = a in self.grids and (b == "blueprint" or b in self.grids)
+            if ready and (a, b) not in self.futures:
+                other = self.bp if b == "blueprint" else self.grids[b]
+                self.futures[(a, b)] = self.jobs.submit(_compare_job, self.grids[a], other, self.cfg.compare)
+
+    def finish(self, out: Path, files: dict, warnings: list[str]) -> tuple[dict, dict]:
+        """Every comparison's metrics and overlay picture (written), in the pairs' order."""
+        from mapping.mapio import write_png
+
+        comparisons, overlays = {}, {}
+        for a, b in self.pairs:
+            fut = self.futures.get((a, b))
+            if fut is None:  # a map that was not made
+                continue
+            key = f"{a}_vs_{b}"
+            metrics, img, err = fut.result()
+            if err is not None:
+                warnings.append(f"{key}: {err}")
+                continue
+            comparisons[key] = {"a": a, "b": b, **metrics}
+            overlays[key] = files[f"overlay_{key}"] = write_png(img, out / f"overlay_{key}.png")
+        return comparisons, overlays
 
 
 # ---- metrics ------------------------------------------------------------------------------------------------------

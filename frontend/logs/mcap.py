@@ -69,8 +69,11 @@ class McapLog(LogReader):
             self._registered.add((schema.id, enc))
         if msgtype not in ts.fielddefs:
             return None
+        data = message.data
+        if len(data) > 65536:  # a depth image: rosbags slices the CDR header off, which copies bytes (~2 s per 10
+            data = memoryview(data)  # minutes of a 30 Hz Kinect); a view's slice does not. The arrays then view data.
         try:
-            msg = ts.deserialize_cdr(message.data, msgtype) if enc == "cdr" else ts.deserialize_ros1(message.data, msgtype)
+            msg = ts.deserialize_cdr(data, msgtype) if enc == "cdr" else ts.deserialize_ros1(data, msgtype)
         except (SerdeError, struct.error, IndexError, ValueError) as e:
             self._undecodable(channel.topic, message.log_time, e)
             return None

@@ -76,6 +76,22 @@ def test_same_seed_same_result(method, backend):
     assert not np.array_equal(a.pixels, c.pixels)
 
 
+def test_uncopied_planes_equal_the_copied_until_the_next_call():
+    """copy=False (the frame stage, which uses the planes at once) gives the same planes as views of scratch
+    buffers that the next call on this thread overwrites."""
+    depth, _, _, cam, mount = frame(seed=5)
+    cfg = FspfConfig()
+    a = fspf_plus(depth, cam, cfg, mount=mount, seed=7)
+    b = fspf_plus(depth, cam, cfg, mount=mount, seed=7, copy=False)
+    for f in ("points", "plane", "pixels", "normals", "offsets", "classes", "counts"):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert a.points.base is None and b.points.base is not None  # a view, not an array of its own
+    kept = b.pixels.copy()
+    fspf_plus(depth, cam, cfg, mount=mount, seed=8, copy=False)
+    assert not np.array_equal(b.pixels, kept)  # overwritten: a caller must use them before the next call
+    assert np.array_equal(a.pixels, kept)
+
+
 @pytest.mark.parametrize("method", ["fspf+", "fspf"])
 def test_stats_add_up_and_output_is_consistent(method):
     depth, _, _, cam, mount = frame(seed=6)

@@ -223,3 +223,36 @@ def test_two_cameras_give_identical_steps_serial_and_parallel(tmp_path):
         for k in a.scans:
             assert np.array_equal(a.scans[k].ranges, b.scans[k].ranges, equal_nan=True), k
         assert (a.laser is None) == (b.laser is None) and (a.laser is None or a.laser.stamp_ns == b.laser.stamp_ns)
+
+
+def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
+    """The comparisons are submitted as their maps arrive (so the workers compare while the MCAP is written), once
+    each, and come back in the fixed order of the pairs whatever the order the maps finished in."""
+    from mapping.grid import OccupancyGrid
+    from mapping.pipeline import _Compares, _Done
+
+    submitted = []
+
+    class Jobs:
+        def submit(self, fn, a, b, ccfg):
+            submitted.append((a.frame_id, b.frame_id))
+            return _Done(({"a": a.frame_id}, np.zeros((2, 2, 3), np.uint8), None))
+
+    def grid(name):
+        return OccupancyGrid(np.zeros((2, 2), np.int8), 0.05, frame_id=name)
+
+    c = _Compares(grid("blueprint"), load_config(None, []), Jobs())
+    c.expect(["kos_h0_30", "kos_obstacle", "laser", "fused"])
+    assert c.pairs == [("kos_obstacle", "blueprint"), ("laser", "blueprint"), ("fused", "blueprint"),
+                       ("kos_obstacle", "laser")]
+    c.grid_ready("laser", grid("laser"))
+    assert submitted == [("laser", "blueprint")]  # KOS vs laser waits for the KOS map
+    c.grid_ready("laser", grid("laser"))  # polled again: not submitted twice
+    c.grid_ready("kos_obstacle", grid("kos_obstacle"))
+    assert submitted == [("laser", "blueprint"), ("kos_obstacle", "blueprint"), ("kos_obstacle", "laser")]
+    c.grid_ready("fused", grid("fused"))
+    files, warnings = {}, []
+    comparisons, overlays = c.finish(tmp_path, files, warnings)
+    assert list(comparisons) == ["kos_obstacle_vs_blueprint", "laser_vs_blueprint", "fused_vs_blueprint",
+                                 "kos_obstacle_vs_laser"]
+    assert all(p.exists() for p in overlays.values()) and not warnings
