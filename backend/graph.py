@@ -188,6 +188,13 @@ class PoseGraph:
         self.gyro_bias = 0.0  # rad/s, estimated in the final solve (`gyro_bias = "estimate"`): the latest block's
         self.gyro_biases = np.zeros(0)  # rad/s per bias block (gyro_bias_block_s) after a solve
 
+    def __getstate__(self) -> dict:
+        """Pickled (a SLAM run in another process, mapping/slamproc.py) without gtsam's ISAM2, which does not
+        pickle: the copy keeps its factors, edges and estimate but cannot be extended."""
+        state = dict(self.__dict__)
+        state["isam"] = None
+        return state
+
     # ---- building ---------------------------------------------------------------------------------------------------
     @property
     def n(self) -> int:

@@ -151,14 +151,8 @@ class FramePool:
     def peak_rss_mb(self) -> float:
         """The largest peak resident memory (VmHWM) of the live workers, MB (0 when serial or not on Linux): the
         workers live until the build ends, so getrusage(RUSAGE_CHILDREN) cannot see them before."""
-        peak = 0
-        for pid in list(getattr(self._ex, "_processes", None) or {}):
-            try:
-                with open(f"/proc/{pid}/status") as fh:
-                    peak = max([peak] + [int(x.split()[1]) for x in fh if x.startswith("VmHWM:")])
-            except (OSError, ValueError, IndexError):
-                continue
-        return peak / 1024
+        return executor_peak_rss_mb(self._ex)
+
 
     def drop(self) -> None:
         """Forget the queued frames (Ctrl-C): those not started are cancelled, the running ones finish unread; the
@@ -183,3 +177,15 @@ class FramePool:
 
     def __exit__(self, exc_type, exc, tb) -> None:
         self.close(cancel=exc_type is not None)
+
+
+def executor_peak_rss_mb(ex: ProcessPoolExecutor | None) -> float:
+    """The largest peak resident memory (VmHWM) of a process pool's live workers, MB (0 when none, or not Linux)."""
+    peak = 0
+    for pid in list(getattr(ex, "_processes", None) or {}):
+        try:
+            with open(f"/proc/{pid}/status") as fh:
+                peak = max([peak] + [int(x.split()[1]) for x in fh if x.startswith("VmHWM:")])
+        except (OSError, ValueError, IndexError):
+            continue
+    return peak / 1024

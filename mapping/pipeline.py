@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import csv
 import json
+import multiprocessing as mp
 import os
 import shutil
 import signal
@@ -44,10 +45,11 @@ from frontend.logs import detect_topics, open_log
 from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
 from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
-from mapping.framepool import FramePool, default_workers
+from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
 from mapping.jsonsafe import json_safe
 from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
+from mapping.slamproc import RemoteFeed
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
 ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
@@ -116,6 +118,17 @@ class SlamFeed:
             self.slam.add_scan(stamp, pts, odom)
             self.added += 1
             self.wheel.drop_before(stamp - int(2e9))
+
+    def end(self) -> None:
+        """The log has ended (or the read was interrupted): every pending scan goes to SLAM."""
+        self.advance(None)
+
+    def result(self):
+        """SLAM's solved run (mapping/slam.py SlamResult), None when no scan reached it; KosmapError when it failed."""
+        return self.slam.finish() if self.slam.stamps else None
+
+    def close(self) -> None:
+        """Nothing to release in this process (mapping/slamproc.py's feed stops its process)."""
 
     def _odom_at(self, stamp: int) -> np.ndarray | None:
         """Interpolated between the samples around `stamp` (the later within ODOM_WAIT_S); else held at the
@@ -272,11 +285,11 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
-def _peak_rss_mb(children: bool = False) -> float:
-    """Peak resident memory so far of this process (or of its largest finished child), MB."""
+def _peak_rss_mb() -> float:
+    """Peak resident memory so far of this process, MB."""
     import resource
 
-    return resource.getrusage(resource.RUSAGE_CHILDREN if children else resource.RUSAGE_SELF).ru_maxrss / 1024
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _planar(tf: Transform | None) -> np.ndarray:
@@ -344,30 +357,44 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     spill_dir = Path(tempfile.mkdtemp(prefix=".kosmap-spill-", dir=out))
     warnings: list[str] = []
     pool = None
+    feeds: dict[str, SlamFeed | RemoteFeed] = {}
     try:
         # One set of worker processes for the whole build, forked now while this process is small: the frames in
         # pass 1, then the grid and comparison jobs. Workers forked after pass 1 counted every page of this process
         # (by then holding SLAM's state) as their own resident memory: 167 → 259 MB from a 1- to a 10-minute log.
         _warm_grid()  # compiled (or loaded) before the fork: every worker inherits the grid kernel
+        use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
+        if has_depth:
+            feeds["kos"] = SlamFeed(Slam(kos_ocfg, kos_gcfg), use_odom, bool(det.imu))
+        if has_laser:
+            feeds["laser"] = SlamFeed(Slam(cfg.odometry, cfg.graph), use_odom, bool(det.imu))
+        if workers > 0 and "fork" in mp.get_all_start_methods():
+            # each SLAM in a process of its own beside the reading (mapping/slamproc.py), forked before any
+            # thread starts; the same inputs in the same order, so the same maps as serial
+            feeds = {name: RemoteFeed(f, name) for name, f in feeds.items()}
         if has_depth:
             pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None)
         p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings, pool,
-                    Slam(kos_ocfg, kos_gcfg) if has_depth else None,
-                    Slam(cfg.odometry, cfg.graph) if has_laser else None)
+                    feeds.get("kos"), feeds.get("laser"))
         rss = {"after_read": _peak_rss_mb()}
         say(("interrupted: mapping what was read, " if p1["partial"] else "")
             + f"{p1['frames']} depth frames, {p1['laser_kept']} laser scans read in {p1['seconds']:.1f} s")
         t_slam = time.perf_counter()
         results = {}
-        for name, slam in (("kos", p1["kos_slam"]), ("laser", p1["laser_slam"])):
-            if slam is None or not slam.stamps:
-                continue
+        for name, feed in feeds.items():
             try:
-                results[name] = slam.finish()
+                res = feed.result()
             except KosmapError as e:
                 warnings.append(f"{name} SLAM produced no trajectory: {e}")
                 continue
-            warnings.extend(f"{name} SLAM: {w}" for w in results[name].warnings)  # the gyro's, the heading priors'
+            finally:
+                if feed.no_odom:
+                    warnings.append(f"{feed.no_odom} {'KOS' if name == 'kos' else name} scan(s) had no wheel odometry "
+                                    f"within {ODOM_STALE_S} s: matched without it")
+            if res is None:
+                continue
+            results[name] = res
+            warnings.extend(f"{name} SLAM: {w}" for w in res.warnings)  # the gyro's, the heading priors'
         slam_finish_s = time.perf_counter() - t_slam
         if not results:
             raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
@@ -384,6 +411,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             comparisons, overlays = compares.finish(out, files, warnings)
             compare_s = time.perf_counter() - t_cmp
         finally:
+            jobs_rss = executor_peak_rss_mb(jobs.ex)  # read while they live: their own pool ends at close
             jobs.close()
         rss["after_maps_and_compare"] = _peak_rss_mb()
         metrics = _metrics(log, det, info_counts=counts, duration=duration, p1=p1, results=results, grids=grids,
@@ -391,8 +419,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
-        metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": max(
-            _peak_rss_mb(children=True), pool.peak_rss_mb() if pool is not None else 0.0)}
+        # the workers' peaks from /proc (getrusage's children would count the SLAM processes too)
+        metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,
+                             "peak_rss_mb_slam": {n: f.peak_rss_mb for n, f in feeds.items() if isinstance(f, RemoteFeed)}}
         metrics["timing"]["total_s"] = time.perf_counter() - t_start
         metrics["timing"]["cpu_s"] = time.process_time() - cpu_start
         metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
@@ -410,6 +439,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
         return BuildResult(out, json_safe(metrics), files)
     finally:
+        for feed in feeds.values():
+            feed.close()
         if pool is not None:
             pool.close(cancel=True)
         shutil.rmtree(spill_dir, ignore_errors=True)
@@ -428,16 +459,13 @@ def _expected_units(det, counts: dict, duration: float, bcfg) -> int:
 
 
 def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: int, progress: bool,
-           on_progress, spill_dir: Path, warnings: list[str], pool: FramePool | None, kos_slam, laser_slam) -> dict:
-    """Read the log once: frames to `pool` (the caller's, left open for pass 2), steps and laser scans to SLAM and
-    the spill, stats to stats.csv."""
+           on_progress, spill_dir: Path, warnings: list[str], pool: FramePool | None, kos_feed, laser_feed) -> dict:
+    """Read the log once: frames to `pool` (the caller's, left open for pass 2), steps and laser scans to the
+    SLAM feeds (ended here, solved by the caller) and the spill, stats to stats.csv."""
     bcfg = cfg.build
     out = spill_dir.parent
     spill = Spill(spill_dir)
     bands = [b[0] for b in cfg.kos.bands()]
-    use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
-    kos_feed = SlamFeed(kos_slam, use_odom, bool(det.imu)) if kos_slam is not None else None
-    laser_feed = SlamFeed(laser_slam, use_odom, bool(det.imu)) if laser_slam is not None else None
     feeds = [f for f in (kos_feed, laser_feed) if f is not None]
     statics: list[Transforms] = []
     static_keys: set[tuple] = set()
@@ -620,7 +648,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
             for step in stream.flush():
                 on_step(step)
         for f in feeds:
-            f.advance(None)
+            f.end()
         run.warnings.extend(lg.warnings)
     finally:
         lg.close()
@@ -632,16 +660,13 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         spill.close()
     os.replace(csv_path, out / "stats.csv")
     warnings.extend(run.warnings)
-    for name, f in (("KOS", kos_feed), ("laser", laser_feed)):
-        if f is not None and f.no_odom:
-            warnings.append(f"{f.no_odom} {name} scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it")
     g = np.asarray(gt, np.float64).reshape(-1, 4)
     t0, t = state["t0"], state["t"]
     return {"spill": spill, "frames": state["frames"], "laser_kept": state["laser_kept"],
             "laser_seen": state["laser_seen"], "partial": state["partial"],
             "seconds": time.perf_counter() - t_begin, "cpu_s": time.process_time() - cpu0,
             "log_s": (t - t0) * 1e-9 if t0 is not None and t is not None else 0.0, "t0_ns": t0,
-            "kos_slam": kos_slam, "laser_slam": laser_slam, "laser_mount": state["laser_mount"],
+            "laser_mount": state["laser_mount"],
             "gt": g, "stats": {k: np.asarray(v) for k, v in stats.items()}, "run": run, "statics": statics,
             "total": total}
 

@@ -69,13 +69,15 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
     load0 = os.getloadavg()[0]
     cpu0 = _cpu_times()
     at = {"log_s": 0.0}
-    samples: list[tuple[float, float, float]] = []  # (log s read, main RSS MB, largest worker RSS MB)
+    samples: list[tuple[float, float, float, float]] = []  # (log s read, main, largest worker, largest SLAM RSS MB)
     stop = threading.Event()
 
     def sample() -> None:  # resident memory over the run, twice a second
         while not stop.wait(0.5):
-            kids = [_rss_mb(c) for c in _children(os.getpid())]
-            samples.append((at["log_s"], _rss_mb(os.getpid()), max(kids, default=0.0)))
+            kids = _children(os.getpid())
+            slam = [_rss_mb(c) for c in kids if _comm(c).startswith("slam-")]  # mapping/slamproc.py names them
+            work = [_rss_mb(c) for c in kids if not _comm(c).startswith("slam-")]
+            samples.append((at["log_s"], _rss_mb(os.getpid()), max(work, default=0.0), max(slam, default=0.0)))
 
     def on_progress(p) -> None:
         at["log_s"] = p.log_s
@@ -93,7 +95,8 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
     m = res.metrics
     print(json.dumps({"wall_s": wall, "cpu_main_s": me.ru_utime + me.ru_stime, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
-                      "maxrss_main_mb": me.ru_maxrss / 1024, "maxrss_worker_mb": kids.ru_maxrss / 1024,
+                      "maxrss_main_mb": me.ru_maxrss / 1024, "maxrss_worker_mb": m["memory"]["peak_rss_mb_workers"],
+                      "maxrss_slam_mb": max((m["memory"].get("peak_rss_mb_slam") or {}).values(), default=None),
                       "load_avg_1min": [load0, os.getloadavg()[0]], "steal_pct": _steal_pct(cpu0, _cpu_times()),
                       "memory": m.get("memory"), "rss_during_pass1": _quarters(samples, m["timing"]["log_s"]),
                       "metrics": {k: m[k] for k in ("log", "frames", "timing", "table_5_5", "table_5_2")},
@@ -127,6 +130,14 @@ def _steal_pct(a: list[int], b: list[int]) -> float | None:
     return 100.0 * d[7] / sum(d) if sum(d) > 0 else None
 
 
+def _comm(pid: int) -> str:
+    try:
+        with open(f"/proc/{pid}/comm") as fh:
+            return fh.read().strip()
+    except OSError:
+        return ""
+
+
 def _children(pid: int) -> list[int]:
     out = []
     try:
@@ -138,14 +149,15 @@ def _children(pid: int) -> list[int]:
     return out
 
 
-def _quarters(samples: list[tuple[float, float, float]], log_s: float) -> dict:
-    """Largest RSS (main, worker) sampled while pass 1 read each quarter of the log (before its last record: after
-    it come the maps and the report): flat memory gives four equal numbers, growth with the log rising ones."""
-    out: dict[str, list] = {"main_mb": [], "worker_mb": []}
+def _quarters(samples: list[tuple[float, float, float, float]], log_s: float) -> dict:
+    """Largest RSS (main, worker, SLAM process) sampled while pass 1 read each quarter of the log (before its last
+    record: after it come the maps and the report): flat memory gives four equal numbers, growth with the log
+    rising ones."""
+    out: dict[str, list] = {"main_mb": [], "worker_mb": [], "slam_mb": []}
     for q in range(4):
         sel = [x for x in samples if q * log_s / 4 < x[0] <= (q + 1) * log_s / 4 and x[0] < log_s]
-        out["main_mb"].append(max((x[1] for x in sel), default=None))
-        out["worker_mb"].append(max((x[2] for x in sel), default=None))
+        for k, key in ((1, "main_mb"), (2, "worker_mb"), (3, "slam_mb")):
+            out[key].append(max((x[k] for x in sel), default=None))
     return out
 
 
@@ -218,9 +230,11 @@ def breakdown(r: dict) -> dict:
     pass1_main = m["timing"]["read_and_frames_cpu_s"]
     if r["workers"] == 0:  # serial: the frames ran in the main process too
         pass1_main -= fspf + kos
+    if not (m.get("memory") or {}).get("peak_rss_mb_slam"):  # the SLAMs ran in the main process too
+        pass1_main -= sum(slam.values())
     return {"fspf_plus": fspf / log_s, "kos": kos / log_s, "slam_kos": slam.get("kos", 0.0) / log_s,
             "slam_laser": slam.get("laser", 0.0) / log_s,
-            "read_decode_spill": max(0.0, pass1_main - sum(slam.values())) / log_s,
+            "read_decode_spill": max(0.0, pass1_main) / log_s,
             "maps_and_mcap_wall": m["timing"]["maps_s"] / log_s, "compare_wall": m["timing"]["compare_s"] / log_s,
             "report_wall": m["timing"].get("report_s", 0.0) / log_s}
 
@@ -339,7 +353,7 @@ def markdown(doc: dict) -> str:
          "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: the "
          "same code on the 10-minute log took 0.175 to 0.26 CPU s per second of log in three builds within 25 minutes "
          "(6.4× to 9.9× real time), as the host's load changed what a CPU second does. 'CPU bound' is 2 cores "
-         "divided by the build's CPU seconds (main and workers) per second of log.", "",
+         "divided by the build's CPU seconds (main, workers and SLAM processes) per second of log.", "",
          "| log | workers | config | depth frames | wall (s) | real-time factor | previous | ratio | CPU s per log s "
          "(previous) | CPU bound on 2 cores | load avg (steal) | peak RSS main (MB) | peak RSS worker (MB) |",
          "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -385,8 +399,9 @@ def markdown(doc: dict) -> str:
                       f"{b['wall_s'] / r['wall_s']:.2f}× faster."]
     L += ["", "Where the time goes, per second of log: FSPF+ and KOS are the per-frame times measured inside the "
           "frame stage (a worker's wall time: with 2 workers and the main process sharing 2 cores it exceeds the "
-          "CPU time, and more so on a loaded machine; the serial run shows one core's cost); read, decode, spill and the SLAMs are the main "
-          "process's CPU (in the serial run less the frames' wall time, so a lower bound); 'pass 1 bound' is 2 cores "
+          "CPU time, and more so on a loaded machine; the serial run shows one core's cost); read, decode, spill is the main "
+          "process's CPU (in the serial run less the frames' wall time, so a lower bound); the SLAMs are their own "
+          "timers (front end, graph, loops; with workers each SLAM runs in a process of its own); 'pass 1 bound' is 2 cores "
           "divided by the sum of those: the best real-time factor the reading pass could reach; the stages marked "
           "wall are wall seconds.", "",
           "| log | workers | config | FSPF+ | KOS | read, decode, spill | SLAM on KOS | SLAM on laser | pass 1 bound on 2 cores | maps + MCAP (wall) | compare (wall) | report (wall) |",
@@ -449,16 +464,19 @@ def memory_section(doc: dict) -> list[str]:
     """Peak resident memory by phase, the previous run's beside it, and the growth from the shortest to the longest
     log per minute of log and per SLAM keyframe."""
     L = ["", "## Memory", "",
-         "Peak resident memory (VmHWM, MB) of the main process after pass 1 (log read, frames, both SLAMs), after the "
-         "grids, MCAP and comparisons, and over the whole build (the report included), and of the largest worker; "
+         "Peak resident memory (VmHWM, MB) of the main process after pass 1 (log read, frames), after the "
+         "grids, MCAP and comparisons, and over the whole build (the report included), of the largest worker and of "
+         "the larger of the two SLAM processes (since this session's change, each SLAM runs in a process of its own, "
+         "mapping/slamproc.py: its state grows there, not in the main process); "
          "the previous run of the same log and config in brackets. The frame workers also run the grid and comparison "
          "jobs, forked once before pass 1 (before ede04ba the jobs' workers were forked after pass 1 and counted the "
          "main process's pages, SLAM's state included, as their own)."
          " The main process starts at ~240 MB before reading a record (numpy and numba 90, gtsam 40, kosmap's "
          "modules 50, the FSPF+/KOS kernels loaded from numba's cache 50) and ~290 MB once pass 1 runs: constant.", "",
          "| log | workers | config | keyframes (KOS + laser) | main during pass 1, by quarter of the log | main after "
-         "pass 1 | main after maps | main peak (previous) | worker during pass 1 | worker peak (previous) | load avg |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
+         "pass 1 | main after maps | main peak (previous) | worker during pass 1 | worker peak (previous) | "
+         "SLAM process during pass 1 | SLAM process peak | load avg |",
+         "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in doc["runs"]:
         mem = r.get("memory") or {}
         main = mem.get("peak_rss_mb_main") or {}
@@ -473,6 +491,7 @@ def memory_section(doc: dict) -> list[str]:
                  f"{r['maxrss_main_mb']:.0f} ({fmt(pv.get('maxrss_main_mb'))}) | "
                  f"{' / '.join(fmt(v) for v in qs.get('worker_mb') or []) or '–'} | "
                  f"{r['maxrss_worker_mb']:.0f} ({fmt(pv.get('maxrss_worker_mb'))}) | "
+                 f"{' / '.join(fmt(v) for v in qs.get('slam_mb') or []) or '–'} | {fmt(r.get('maxrss_slam_mb'))} | "
                  f"{f'{load[0]:.1f}–{load[1]:.1f}' if load else '–'} |")
     groups: dict[tuple, list] = {}
     for r in doc["runs"]:
@@ -493,7 +512,10 @@ def memory_section(doc: dict) -> list[str]:
               f"after pass 1 grows {pb - pa:.0f} MB ({(pb - pa) / dm:.1f} MB per minute of log, "
               f"{(pb - pa) * 1e6 / (kb - ka) / 1e3:.1f} kB per keyframe of the two SLAMs); its whole-build peak "
               f"{b['maxrss_main_mb'] - a['maxrss_main_mb']:+.0f} MB, the largest worker's "
-              f"{b['maxrss_worker_mb'] - a['maxrss_worker_mb']:+.0f} MB."]
+              f"{b['maxrss_worker_mb'] - a['maxrss_worker_mb']:+.0f} MB"
+              + (f", the larger SLAM process's {b['maxrss_slam_mb'] - a['maxrss_slam_mb']:+.0f} MB "
+                 f"({(b['maxrss_slam_mb'] - a['maxrss_slam_mb']) * 1e3 / (kb - ka):.1f} kB per keyframe of the two SLAMs)."
+                 if a.get("maxrss_slam_mb") and b.get("maxrss_slam_mb") else ".")]
     L += ["",
           "What the build holds: no frames and no scans (the per-step scans, laser scans and plane clouds go to a "
           "temporary file, read back in chunks; the plane points keep no per-point stamp); at most `[build] "

@@ -1,0 +1,147 @@
+"""One SLAM in a process of its own: its scan matching runs beside the reading instead of on the main thread.
+
+Profiled on the 10-minute office log, the two SLAMs held the main thread ~23 s of pass 1's ~90 s while the two
+cores were only ~75 % busy: the main thread (reading, decoding, feeding the frame workers, SLAM) was the
+bottleneck. `RemoteFeed` records the calls a `SlamFeed` gets (odometry, gyro, scans, advance) in order and
+sends them in batches through a pipe to a forked process that replays them on the same `SlamFeed`: SLAM sees
+exactly the inputs it gets in this process, so the maps stay identical to a serial build's.
+"""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+import signal
+import traceback
+from typing import Any
+
+from frontend.errors import KosmapError
+
+
+def _peak_rss_mb() -> float:
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def _name_process(name: str) -> None:
+    """Show the process as `name` in top, ps and /proc/PID/comm (Linux; elsewhere nothing): tools/bench_pipeline.py
+    tells the SLAM processes from the frame workers by it."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).prctl(15, name.encode()[:15], 0, 0, 0)  # PR_SET_NAME
+    except (OSError, AttributeError):
+        pass
+
+
+def _serve(feed, conn, name: str) -> None:
+    """The child: replay the parent's calls on `feed`; at "end", send back (status, result or error, scans added,
+    scans without odometry, peak RSS MB)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it still asks for the result
+    _name_process(f"slam-{name}")  # 15 characters at most
+    try:
+        while True:
+            for name, args in conn.recv():
+                if name == "end":
+                    feed.end()
+                    try:
+                        reply: tuple = ("ok", feed.result())
+                    except KosmapError as e:
+                        reply = ("error", e)
+                    conn.send(reply + (feed.added, feed.no_odom, _peak_rss_mb()))
+                    return
+                getattr(feed, name)(*args)
+    except EOFError:  # the parent is gone
+        return
+    except BaseException as e:  # noqa: BLE001 - anything SLAM raised goes to the parent, which re-raises it
+        err: BaseException = e
+        try:
+            conn.send(("error", err, feed.added, feed.no_odom, _peak_rss_mb()))
+        except Exception:  # an exception that does not pickle: its traceback as text
+            conn.send(("error", RuntimeError(traceback.format_exc()), feed.added, feed.no_odom, _peak_rss_mb()))
+    finally:
+        conn.close()
+
+
+class RemoteFeed:
+    """A `SlamFeed` (mapping/pipeline.py) run in a forked process; the same methods. Fork it before any thread
+    starts (the frame pool's, the read-ahead's)."""
+
+    BATCH = 256  # calls per message through the pipe
+
+    def __init__(self, feed, name: str) -> None:
+        self.name = name
+        self.slam = feed.slam  # this process's copy: its configs only
+        self.use_odom, self.use_imu = feed.use_odom, feed.use_imu
+        self.added = self.no_odom = 0  # known once the result came back
+        self.peak_rss_mb = 0.0
+        self._ops: list[tuple[str, tuple]] = []
+        self._reply: tuple | None = None
+        ctx = mp.get_context("fork")
+        self._conn, child = ctx.Pipe()
+        self._proc = ctx.Process(target=_serve, args=(feed, child, name), name=f"kosmap-slam-{name}", daemon=True)
+        self._proc.start()
+        child.close()
+
+    # -- the SlamFeed calls, recorded --------------------------------------------------------------------------
+    def odom(self, rec) -> None:
+        self._call("odom", rec)
+
+    def imu(self, rec) -> None:
+        if self.use_imu:
+            self._call("imu", rec)
+
+    def push(self, stamp_ns: int, points, deskew: tuple | None = None) -> None:
+        self._call("push", int(stamp_ns), points, deskew)
+
+    def advance(self, now_ns: int | None) -> None:
+        if self._ops and self._ops[-1][0] == "advance":  # advance(a) then advance(b ≥ a) is advance(b)
+            self._ops[-1] = ("advance", (now_ns,))
+            return
+        self._call("advance", now_ns)
+
+    def end(self) -> None:
+        """No more input: the child hands SLAM the pending scans and solves (both SLAMs at once, beside this
+        process)."""
+        self._ops.append(("end", ()))
+        self._flush()
+
+    def result(self):
+        """The child's SlamResult (its graph without the ISAM2 solver), None when no scan reached SLAM; SLAM's
+        KosmapError re-raised here."""
+        if self._reply is None:
+            try:
+                self._reply = self._conn.recv()
+            except (EOFError, OSError):
+                self._died()
+            self._proc.join()
+        status, value, self.added, self.no_odom, self.peak_rss_mb = self._reply
+        if status == "error":
+            raise value
+        return value
+
+    def close(self) -> None:
+        """Stop the child if it still runs (an error elsewhere ended the build)."""
+        if self._proc.is_alive():
+            self._proc.terminate()
+        self._proc.join()
+        self._conn.close()
+
+    # -- plumbing ------------------------------------------------------------------------------------------------
+    def _call(self, name: str, *args: Any) -> None:
+        self._ops.append((name, args))
+        if len(self._ops) >= self.BATCH:
+            self._flush()
+
+    def _flush(self) -> None:
+        if self._conn.poll():  # the child stopped early: it sent its error
+            self.result()
+        try:
+            self._conn.send(self._ops)
+        except (BrokenPipeError, OSError):
+            self._died()
+        self._ops = []
+
+    def _died(self) -> None:
+        raise KosmapError(f"the {self.name} SLAM process died (out of memory?); rerun with --workers 0 to run SLAM "
+                          "in the main process")
