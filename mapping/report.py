@@ -395,11 +395,14 @@ def _html(blocks: list[tuple]) -> str:
             f"<style>{CSS}</style></head><body>{''.join(parts)}</body></html>\n")
 
 
-def write_report(out: str | Path, metrics: dict) -> dict[str, Path]:
-    """Write trajectories.png, frames.png, report.md and report.html into `out` (beside the run's files)."""
+def write_report(out: str | Path, metrics: dict, frames_png: Path | None | bool = True) -> dict[str, Path]:
+    """Write trajectories.png, frames.png, report.md and report.html into `out` (beside the run's files).
+    `frames_png`: frames.png when the caller drew it already (None: there is none), True: draw it here."""
     out = Path(out)
     traj = trajectory_figure(out, metrics)
-    frames = frames_figure(out) if metrics.get("sources", {}).get("kos") else None
+    if frames_png is True:
+        frames_png = frames_figure(out) if metrics.get("sources", {}).get("kos") else None
+    frames = frames_png
     summary = summary_figure(out, metrics)
     blocks = _sections(out, metrics, traj, frames)
     if summary is not None:  # the run at a glance, right under the headline numbers
