@@ -10,6 +10,7 @@ exactly the inputs it gets in this process, so the maps stay identical to a seri
 from __future__ import annotations
 
 import multiprocessing as mp
+import pickle
 import signal
 import traceback
 from typing import Any
@@ -56,9 +57,10 @@ def _serve(feed, conn, name: str) -> None:
     except BaseException as e:  # noqa: BLE001 - anything SLAM raised goes to the parent, which re-raises it
         err: BaseException = e
         try:
-            conn.send(("error", err, feed.added, feed.no_odom, _peak_rss_mb()))
+            pickle.loads(pickle.dumps(err))  # it must come out at the other end too
         except Exception:  # an exception that does not pickle: its traceback as text
-            conn.send(("error", RuntimeError(traceback.format_exc()), feed.added, feed.no_odom, _peak_rss_mb()))
+            err = RuntimeError(traceback.format_exc())
+        conn.send(("error", err, feed.added, feed.no_odom, _peak_rss_mb()))
     finally:
         conn.close()
 
@@ -134,13 +136,15 @@ class RemoteFeed:
             self._flush()
 
     def _flush(self) -> None:
-        if self._conn.poll():  # the child stopped early: it sent its error
-            self.result()
         try:
-            self._conn.send(self._ops)
-        except (BrokenPipeError, OSError):
-            self._died()
-        self._ops = []
+            if not self._conn.poll():  # (the child sends nothing before "end" unless it failed)
+                self._conn.send(self._ops)
+                self._ops = []
+                return
+        except OSError:  # the child is gone: it may have sent its error first
+            pass
+        self.result()  # raises the child's error, or says that it died
+        self._died()
 
     def _died(self) -> None:
         raise KosmapError(f"the {self.name} SLAM process died (out of memory?); rerun with --workers 0 to run SLAM "

@@ -72,6 +72,8 @@ def test_an_error_in_the_child_is_raised_in_the_parent():
         with pytest.raises(Exception) as e:
             remote.push(0, np.full((5, 3, 2), np.nan))  # not N×2 points: SLAM fails on it in the child
             remote.advance(None)
+            for i in range(5000):  # the parent goes on sending (batches) after the child has stopped
+                remote.odom(Odometry(i, 0.0, 0.0, 0.0))
             remote.end()
             remote.result()
         assert "died" not in str(e.value)  # SLAM's own error, not a lost process
