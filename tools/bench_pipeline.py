@@ -340,6 +340,14 @@ def cpu_per_log_s(r: dict) -> float:
     return (r["cpu_main_s"] + r["cpu_workers_s"]) / (r["metrics"]["timing"]["log_s"] or 1.0)
 
 
+def _older_rows(doc: dict) -> str:
+    """Which rows were kept from runs at other commits (`--merge`): their numbers are that code's, not this one's."""
+    head = str(doc.get("commit", "?")).split()[0]
+    older = [f"{r['minutes']:g} min {' '.join(r['sets']) or 'default'} at {str(r.get('commit', '?')).split()[0]}"
+             for r in doc["runs"] if str(r.get("commit", "?")).split()[0] != head]
+    return f"; rows kept from earlier runs (their code, not this one's): {', '.join(older)}" if older else ""
+
+
 def markdown(doc: dict) -> str:
     L = ["# `kosmap build` speed and memory", "",
          "`python -m tools.bench_pipeline`: the simulated office (Kinect 512×424 at 30 Hz, laser 1081 beams at 40 Hz, "
@@ -347,7 +355,7 @@ def markdown(doc: dict) -> str:
          "and three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
          "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",
          f"Machine: {doc.get('machine', {}).get('cpus')} cores, Python {doc.get('machine', {}).get('python')}; "
-         f"code at {doc.get('commit', '?')}.",
+         f"code at {doc.get('commit', '?')}" + _older_rows(doc) + ".",
          "", "The machine is shared: the load average (1 min, before and after each build) says how much else ran in "
          "it, the steal (the share of the machine's time its host gave to other guests during the build) how much ran "
          "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: the "
