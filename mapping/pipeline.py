@@ -49,7 +49,7 @@ from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
 from mapping.jsonsafe import json_safe
 from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
-from mapping.slamproc import RemoteFeed
+from mapping.slamproc import RemoteFeed, SlamProcessError
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
 ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
@@ -371,7 +371,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         if workers > 0 and "fork" in mp.get_all_start_methods():
             # each SLAM in a process of its own beside the reading (mapping/slamproc.py), forked before any
             # thread starts; the same inputs in the same order, so the same maps as serial
-            feeds = {name: RemoteFeed(f, name) for name, f in feeds.items()}
+            for name in list(feeds):  # one at a time: a failed fork leaves the ones made in `feeds` to be closed
+                feeds[name] = RemoteFeed(feeds[name], name)
         if has_depth:
             pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None)
         p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings, pool,
@@ -384,6 +385,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         for name, feed in feeds.items():
             try:
                 res = feed.result()
+            except SlamProcessError:
+                raise  # a lost process is the build's failure, not one map's
             except KosmapError as e:
                 warnings.append(f"{name} SLAM produced no trajectory: {e}")
                 continue

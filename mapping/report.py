@@ -315,7 +315,8 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
             main = mem["peak_rss_mb_main"]
             rows.append(["peak memory (resident)", f"main process {_f(main.get('after_read'), 0)} MB after reading, "
                          f"{_f(main.get('after_maps_and_compare'), 0)} MB at the end; largest worker "
-                         f"{_f(mem.get('peak_rss_mb_workers'), 0)} MB"])
+                         f"{_f(mem.get('peak_rss_mb_workers'), 0)} MB"
+                         + "".join(f"; {n} SLAM process {_f(v, 0)} MB" for n, v in (mem.get("peak_rss_mb_slam") or {}).items())])
         B.append(("table", ["stage", "time"], rows))
     warns = m.get("warnings", [])
     if warns:

@@ -10,12 +10,19 @@ exactly the inputs it gets in this process, so the maps stay identical to a seri
 from __future__ import annotations
 
 import multiprocessing as mp
+import os
 import pickle
 import signal
+import threading
 import traceback
+from contextlib import contextmanager
 from typing import Any
 
 from frontend.errors import KosmapError
+
+
+class SlamProcessError(KosmapError):
+    """A SLAM process died, or its input could not be sent whole: the build cannot map that source."""
 
 
 def _peak_rss_mb() -> float:
@@ -24,22 +31,29 @@ def _peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
-def _name_process(name: str) -> None:
-    """Show the process as `name` in top, ps and /proc/PID/comm (Linux; elsewhere nothing): tools/bench_pipeline.py
-    tells the SLAM processes from the frame workers by it."""
+def _as_child(name: str, parent_pid: int) -> None:
+    """Linux (elsewhere nothing): show the process as `name` in top, ps and /proc/PID/comm (tools/bench_pipeline.py
+    tells the SLAM processes from the frame workers by it), and die with the parent. The pipe cannot tell: the
+    frame workers, forked later, hold copies of its parent end, so a parent killed outright (out of memory) would
+    leave the child waiting for ever."""
     try:
         import ctypes
 
-        ctypes.CDLL(None).prctl(15, name.encode()[:15], 0, 0, 0)  # PR_SET_NAME
+        libc = ctypes.CDLL(None)
+        libc.prctl(15, name.encode()[:15], 0, 0, 0)  # PR_SET_NAME
+        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
     except (OSError, AttributeError):
         pass
+    if os.getppid() != parent_pid:  # the parent died before the line above
+        os._exit(1)
 
 
-def _serve(feed, conn, name: str) -> None:
+def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
     """The child: replay the parent's calls on `feed`; at "end", send back (status, result or error, scans added,
     scans without odometry, peak RSS MB)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's: it still asks for the result
-    _name_process(f"slam-{name}")  # 15 characters at most
+    parent_end.close()
+    _as_child(f"slam-{name}", parent_pid)  # 15 characters at most
     try:
         while True:
             for name, args in conn.recv():
@@ -65,6 +79,27 @@ def _serve(feed, conn, name: str) -> None:
         conn.close()
 
 
+@contextmanager
+def _sigint_held():
+    """A Ctrl-C during the block is handled when the block ends, by the handler it found (the pipeline's sets its
+    stop flag, Python's raises KeyboardInterrupt): a KeyboardInterrupt raised inside a pipe write would cut a
+    message in half, and the child could only fail on what follows."""
+    held: list = []
+    old = None
+    if threading.current_thread() is threading.main_thread():
+        old = signal.signal(signal.SIGINT, lambda *a: held.append(a))
+    try:
+        yield
+    finally:
+        if old is not None:
+            signal.signal(signal.SIGINT, old)
+    if held:
+        if callable(old):
+            old(*held[0])
+        elif old != signal.SIG_IGN:
+            raise KeyboardInterrupt
+
+
 class RemoteFeed:
     """A `SlamFeed` (mapping/pipeline.py) run in a forked process; the same methods. Fork it before any thread
     starts (the frame pool's, the read-ahead's)."""
@@ -81,7 +116,8 @@ class RemoteFeed:
         self._reply: tuple | None = None
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
-        self._proc = ctx.Process(target=_serve, args=(feed, child, name), name=f"kosmap-slam-{name}", daemon=True)
+        self._proc = ctx.Process(target=_serve, args=(feed, child, self._conn, name, os.getpid()),
+                                 name=f"kosmap-slam-{name}", daemon=True)
         self._proc.start()
         child.close()
 
@@ -97,8 +133,9 @@ class RemoteFeed:
         self._call("push", int(stamp_ns), points, deskew)
 
     def advance(self, now_ns: int | None) -> None:
-        if self._ops and self._ops[-1][0] == "advance":  # advance(a) then advance(b ≥ a) is advance(b)
-            self._ops[-1] = ("advance", (now_ns,))
+        last = self._ops[-1] if self._ops else None
+        if last is not None and last[0] == "advance" and last[1][0] is not None and now_ns is not None:
+            self._ops[-1] = ("advance", (now_ns,))  # advance(a) then advance(b ≥ a) is advance(b): the log's time only grows
             return
         self._call("advance", now_ns)
 
@@ -136,16 +173,17 @@ class RemoteFeed:
             self._flush()
 
     def _flush(self) -> None:
-        try:
-            if not self._conn.poll():  # (the child sends nothing before "end" unless it failed)
-                self._conn.send(self._ops)
-                self._ops = []
-                return
-        except OSError:  # the child is gone: it may have sent its error first
-            pass
-        self.result()  # raises the child's error, or says that it died
-        self._died()
+        with _sigint_held():  # a batch is sent whole and once, or not at all
+            try:
+                if not self._conn.poll():  # (the child sends nothing before "end" unless it failed)
+                    self._conn.send(self._ops)
+                    self._ops = []
+                    return
+            except OSError:  # the child is gone: it may have sent its error first
+                pass
+            self.result()  # raises the child's error, or says that it died
+            self._died()
 
     def _died(self) -> None:
-        raise KosmapError(f"the {self.name} SLAM process died (out of memory?); rerun with --workers 0 to run SLAM "
-                          "in the main process")
+        raise SlamProcessError(f"the {self.name} SLAM process died (out of memory?); rerun with --workers 0 to run "
+                               "SLAM in the main process")

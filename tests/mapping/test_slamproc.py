@@ -29,15 +29,20 @@ def _corridor_scan(x: float, rng) -> np.ndarray:
     return np.column_stack((r * c, r * s))
 
 
-def _feed_calls(feed, n: int = 60) -> None:
-    """A robot driving 5 cm a step along the corridor, odometry at twice the scan rate."""
+def _calls(n: int = 60):
+    """(method, args) of a robot driving 5 cm a step along the corridor, odometry at twice the scan rate."""
     rng = np.random.default_rng(3)
     for i in range(n):
         t = int(i * 1e8)
         for k in (0, 1):
-            feed.odom(Odometry(t + k * 50_000_000, 0.05 * i + 0.025 * k, 0.0, 0.0, "odom", "base_link", "/odom"))
-        feed.push(t, _corridor_scan(0.05 * i, rng))
-        feed.advance(t + 50_000_000)
+            yield "odom", (Odometry(t + k * 50_000_000, 0.05 * i + 0.025 * k, 0.0, 0.0, "odom", "base_link", "/odom"),)
+        yield "push", (t, _corridor_scan(0.05 * i, rng))
+        yield "advance", (t + 50_000_000,)
+
+
+def _feed_calls(feed, n: int = 60) -> None:
+    for name, args in _calls(n):
+        getattr(feed, name)(*args)
     feed.end()
 
 
@@ -95,3 +100,86 @@ def test_no_scan_gives_no_result_and_a_dead_child_a_clear_error():
             remote.result()
     finally:
         remote.close()
+
+
+def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
+    """SIGINT arriving while a batch is written is handled after it (here Python's handler: KeyboardInterrupt), and
+    the batch is neither cut nor sent twice: fed on to the end, SLAM gives exactly the in-process result."""
+    local = _feed()
+    _feed_calls(local)
+    want = local.result()
+    remote = RemoteFeed(_feed(), "laser")
+    remote.BATCH = 50  # several batches in the 240 calls (the batch size does not change what SLAM gets)
+    real_send = remote._conn.send
+    sent = []
+
+    def send_with_ctrl_c(obj):
+        if not sent:
+            os.kill(os.getpid(), signal.SIGINT)  # arrives while the first batch is being sent
+        sent.append(len(obj))
+        real_send(obj)
+
+    remote._conn.send = send_with_ctrl_c
+    interrupts = 0
+    try:
+        for name, args in _calls():
+            try:
+                getattr(remote, name)(*args)
+            except KeyboardInterrupt:  # after the call's batch went whole
+                interrupts += 1
+        remote.end()
+        got = remote.result()
+    finally:
+        remote.close()
+    assert interrupts == 1 and sent[0] == 50 and len(sent) > 3
+    assert np.array_equal(got.poses, want.poses) and remote.added == local.added
+
+
+def test_advance_to_the_end_is_never_merged_away():
+    remote = RemoteFeed(_feed(), "kos")
+    try:
+        remote.advance(5)
+        remote.advance(7)  # merged: advance(5) then advance(7) is advance(7)
+        remote.advance(None)
+        remote.advance(9)  # not merged into the end
+        assert remote._ops == [("advance", (7,)), ("advance", (None,)), ("advance", (9,))]
+    finally:
+        remote.close()
+
+
+def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with_its_parent_goes_too(tmp_path):
+    from mapping.slamproc import SlamProcessError
+
+    remote = RemoteFeed(_feed(), "laser")
+    try:
+        _feed_calls(remote)  # sends "end": the child is solving
+        os.kill(remote._proc.pid, signal.SIGKILL)
+        with pytest.raises(SlamProcessError, match="died"):
+            remote.result()
+    finally:
+        remote.close()
+    # a parent killed outright (out of memory) takes its SLAM process with it
+    import subprocess
+    import sys
+    import time
+
+    code = ("import time; from mapping.config import load_config; from mapping.pipeline import SlamFeed; "
+            "from mapping.slam import Slam; from mapping.slamproc import RemoteFeed; c = load_config(None, []); "
+            "r = RemoteFeed(SlamFeed(Slam(c.odometry, c.graph), False), 'laser'); print(r._proc.pid, flush=True); "
+            "time.sleep(60)")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    child = int(p.stdout.readline())
+    p.kill()
+    p.wait()
+
+    def alive(pid: int) -> bool:
+        try:
+            with open(f"/proc/{pid}/status") as fh:
+                return not any(line.startswith("State:") and "Z" in line for line in fh)
+        except FileNotFoundError:
+            return False
+
+    deadline = time.monotonic() + 20
+    while alive(child) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not alive(child)
