@@ -121,6 +121,7 @@ def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
 
     remote._conn.send = send_with_ctrl_c
     interrupts = 0
+    prev = signal.signal(signal.SIGINT, signal.default_int_handler)  # Python's own (an xdist worker may ignore SIGINT)
     try:
         for name, args in _calls():
             try:
@@ -130,6 +131,7 @@ def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
         remote.end()
         got = remote.result()
     finally:
+        signal.signal(signal.SIGINT, prev)
         remote.close()
     assert interrupts == 1 and sent[0] == 50 and len(sent) > 3
     assert np.array_equal(got.poses, want.poses) and remote.added == local.added
