@@ -148,12 +148,6 @@ class FramePool:
         after the frames, instead of forking new workers from a process that has grown meanwhile."""
         return self._ex
 
-    def peak_rss_mb(self) -> float:
-        """The largest peak resident memory (VmHWM) of the live workers, MB (0 when serial or not on Linux): the
-        workers live until the build ends, so getrusage(RUSAGE_CHILDREN) cannot see them before."""
-        return executor_peak_rss_mb(self._ex)
-
-
     def drop(self) -> None:
         """Forget the queued frames (Ctrl-C): those not started are cancelled, the running ones finish unread; the
         workers stay."""
@@ -179,8 +173,17 @@ class FramePool:
         self.close(cancel=exc_type is not None)
 
 
+def peak_rss_mb() -> float:
+    """Peak resident memory so far of this process, MB."""
+    import resource
+
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
 def executor_peak_rss_mb(ex: ProcessPoolExecutor | None) -> float:
-    """The largest peak resident memory (VmHWM) of a process pool's live workers, MB (0 when none, or not Linux)."""
+    """The largest peak resident memory (VmHWM) of a process pool's live workers, MB (0 when none, or not Linux):
+    read from /proc while they live, as getrusage(RUSAGE_CHILDREN) sees only children that have ended (and would
+    count the SLAM processes too)."""
     peak = 0
     for pid in list(getattr(ex, "_processes", None) or {}):
         try:

@@ -45,7 +45,7 @@ from frontend.logs import detect_topics, open_log
 from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
 from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
-from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb
+from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
 from mapping.jsonsafe import json_safe
 from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
@@ -285,13 +285,6 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
-def _peak_rss_mb() -> float:
-    """Peak resident memory so far of this process, MB."""
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-
-
 def _planar(tf: Transform | None) -> np.ndarray:
     if tf is None:
         return np.zeros(3)
@@ -377,7 +370,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None)
         p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings, pool,
                     feeds.get("kos"), feeds.get("laser"))
-        rss = {"after_read": _peak_rss_mb()}
+        rss = {"after_read": peak_rss_mb()}
         say(("interrupted: mapping what was read, " if p1["partial"] else "")
             + f"{p1['frames']} depth frames, {p1['laser_kept']} laser scans read in {p1['seconds']:.1f} s")
         t_slam = time.perf_counter()
@@ -401,7 +394,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         slam_finish_s = time.perf_counter() - t_slam
         if not results:
             raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
-        rss["after_slam"] = _peak_rss_mb()
+        rss["after_slam"] = peak_rss_mb()
         spill: Spill = p1["spill"]
         t_maps = time.perf_counter()
         jobs = _Jobs(workers, pool.executor if pool is not None else None)
@@ -421,13 +414,12 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         finally:
             jobs_rss = executor_peak_rss_mb(jobs.ex)  # read while they live: their own pool ends at close
             jobs.close()
-        rss["after_maps_and_compare"] = _peak_rss_mb()
+        rss["after_maps_and_compare"] = peak_rss_mb()
         metrics = _metrics(log, det, info_counts=counts, duration=duration, p1=p1, results=results, grids=grids,
                            traj=traj, comparisons=comparisons, overlays=overlays, cfg=cfg, blueprint=blueprint,
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
-        # the workers' peaks from /proc (getrusage's children would count the SLAM processes too)
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,
                              "peak_rss_mb_slam": {n: f.peak_rss_mb for n, f in feeds.items() if isinstance(f, RemoteFeed)}}
         metrics["timing"]["total_s"] = time.perf_counter() - t_start

@@ -19,16 +19,11 @@ from contextlib import contextmanager
 from typing import Any
 
 from frontend.errors import KosmapError
+from mapping.framepool import peak_rss_mb
 
 
 class SlamProcessError(KosmapError):
     """A SLAM process died, or its input could not be sent whole: the build cannot map that source."""
-
-
-def _peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
 
 def _as_child(name: str, parent_pid: int) -> None:
@@ -63,7 +58,7 @@ def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
                         reply: tuple = ("ok", feed.result())
                     except KosmapError as e:
                         reply = ("error", e)
-                    conn.send(reply + (feed.added, feed.no_odom, _peak_rss_mb()))
+                    conn.send(reply + (feed.added, feed.no_odom, peak_rss_mb()))
                     return
                 getattr(feed, name)(*args)
     except EOFError:  # the parent is gone
@@ -74,7 +69,7 @@ def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
             pickle.loads(pickle.dumps(err))  # it must come out at the other end too
         except Exception:  # an exception that does not pickle: its traceback as text
             err = RuntimeError(traceback.format_exc())
-        conn.send(("error", err, feed.added, feed.no_odom, _peak_rss_mb()))
+        conn.send(("error", err, feed.added, feed.no_odom, peak_rss_mb()))
     finally:
         conn.close()
 

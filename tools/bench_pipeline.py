@@ -74,9 +74,10 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
 
     def sample() -> None:  # resident memory over the run, twice a second
         while not stop.wait(0.5):
-            kids = _children(os.getpid())
-            slam = [_rss_mb(c) for c in kids if _comm(c).startswith("slam-")]  # mapping/slamproc.py names them
-            work = [_rss_mb(c) for c in kids if not _comm(c).startswith("slam-")]
+            # (RSS, a SLAM process?) of each child: mapping/slamproc.py names its processes slam-…
+            rss = {c: (_rss_mb(c), _comm(c).startswith("slam-")) for c in _children(os.getpid())}
+            slam = [m for m, is_slam in rss.values() if is_slam]
+            work = [m for m, is_slam in rss.values() if not is_slam]
             samples.append((at["log_s"], _rss_mb(os.getpid()), max(work, default=0.0), max(slam, default=0.0)))
 
     def on_progress(p) -> None:
@@ -474,7 +475,7 @@ def memory_section(doc: dict) -> list[str]:
     L = ["", "## Memory", "",
          "Peak resident memory (VmHWM, MB) of the main process after pass 1 (log read, frames), after the "
          "grids, MCAP and comparisons, and over the whole build (the report included), of the largest worker and of "
-         "the larger of the two SLAM processes (since this session's change, each SLAM runs in a process of its own, "
+         "the larger of the two SLAM processes (since b3ac04a each SLAM runs in a process of its own, "
          "mapping/slamproc.py: its state grows there, not in the main process); "
          "the previous run of the same log and config in brackets. The frame workers also run the grid and comparison "
          "jobs, forked once before pass 1 (before ede04ba the jobs' workers were forked after pass 1 and counted the "
