@@ -30,12 +30,25 @@ class KosFrame:
     fspf_ms: float
     kos_ms: float
     n_points: int
-    planes: Planes | None = None  # kept only when asked (figures, MCAP)
+    planes: Planes | None = None  # kept only when asked
+    cloud: tuple[np.ndarray, np.ndarray] | None = None  # a subsample of the plane points, when asked (plane_cloud)
+
+
+def plane_cloud(planes: Planes, n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """At most `n` of the frame's plane points (N×3 float32, camera frame) and their classes (N int8): a sorted
+    subsample seeded by `seed` (the frame's index). Taken where the frame is processed, so that a worker sends
+    back 4000 points, not the ~100k of the whole Planes (~2.4 MB pickled each way)."""
+    pts, cls = planes.points, planes.point_classes()
+    if len(pts) > n:
+        pick = np.sort(np.random.default_rng(seed).choice(len(pts), n, replace=False))
+        return pts[pick], cls[pick]
+    return pts.copy(), cls  # (the points may be FSPF+'s scratch buffers)
 
 
 def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos_cfg: KosConfig, bearings: Bearings,
-              keep_planes: bool = False) -> KosFrame:
-    """FSPF+ (or FSPF) → KOS for one frame (thesis Alg. 3–7); `kos_cfg.source = "depth"` skips plane filtering."""
+              keep_planes: bool = False, cloud_points: int = 0) -> KosFrame:
+    """FSPF+ (or FSPF) → KOS for one frame (thesis Alg. 3–7); `kos_cfg.source = "depth"` skips plane filtering.
+    `keep_planes` keeps the frame's Planes; `cloud_points` > 0 keeps that many of its points (plane_cloud)."""
     t0 = time.perf_counter()
     if kos_cfg.source == "planes":
         planes = filter_planes(item.depth, item.camera, fspf_cfg, depth_cfg, item.mount, frame_seed(fspf_cfg, item.index),
@@ -49,8 +62,9 @@ def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos
     acc = KosAccumulator(kos_cfg, bearings, depth_cfg.min_depth, depth_cfg.max_depth)
     acc.add_depth(item.depth, item.camera, item.mount, pixels)  # per-pixel tables: no back-projection needed
     t2 = time.perf_counter()
+    cloud = plane_cloud(planes, cloud_points, item.index) if cloud_points > 0 and planes is not None else None
     return KosFrame(item.index, item.stamp_ns, item.topic, acc.ranges, stats, (t1 - t0) * 1e3, (t2 - t1) * 1e3,
-                    n_points, planes if keep_planes else None)
+                    n_points, planes if keep_planes else None, cloud)
 
 
 def merge_cameras(frames: list[KosFrame]) -> np.ndarray:

@@ -59,14 +59,14 @@ def in_meters(item: DepthItem) -> DepthItem:
     return item
 
 
-def _work(item: DepthItem, bearings: Bearings, keep_planes: bool, slot: tuple | None = None) -> KosFrame:
+def _work(item: DepthItem, bearings: Bearings, keep_planes: bool, cloud_points: int, slot: tuple | None = None) -> KosFrame:
     fspf_cfg, depth_cfg, kos_cfg = _CONFIGS  # type: ignore[misc]
     if slot is not None:  # (slot, dtype, shape): the depth is in shared memory
         k, dtype, shape = slot
         view = np.ndarray(shape, dtype, buffer=_SLOTS, offset=k * SLOT_BYTES)  # type: ignore[arg-type]
         item = dataclasses.replace(item, depth=view.copy() if view.dtype != np.uint16 else view)
     item = in_meters(item)  # a uint16 view becomes a new float32 array: nothing keeps the slot
-    return kos_frame(item, fspf_cfg, depth_cfg, kos_cfg, bearings, keep_planes=keep_planes)
+    return kos_frame(item, fspf_cfg, depth_cfg, kos_cfg, bearings, keep_planes, cloud_points)
 
 
 def default_workers() -> int:
@@ -107,10 +107,12 @@ class FramePool:
             for f in [self._ex.submit(_ping) for _ in range(self.workers)]:
                 f.result()
 
-    def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None) -> None:
-        """Queue one frame (its depth in metres, or raw uint16 millimetres)."""
+    def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None,
+               cloud_points: int = 0) -> None:
+        """Queue one frame (its depth in metres, or raw uint16 millimetres); `keep_planes`, `cloud_points`: what
+        of its planes comes back (frontend/kosframe.py kos_frame)."""
         if self._ex is None:
-            f = kos_frame(in_meters(item), *self.configs, bearings, keep_planes=keep_planes)
+            f = kos_frame(in_meters(item), *self.configs, bearings, keep_planes, cloud_points)
             self._queue.append((f, tag))
             return
         d = item.depth
@@ -122,7 +124,7 @@ class FramePool:
             np.ndarray(d.shape, d.dtype, buffer=self._slots, offset=k * SLOT_BYTES)[...] = d
             slot = (k, d.dtype.str, d.shape)
             item = dataclasses.replace(item, depth=np.zeros((0,), d.dtype))
-        self._queue.append((self._ex.submit(_work, item, bearings, keep_planes, slot), tag))
+        self._queue.append((self._ex.submit(_work, item, bearings, keep_planes, cloud_points, slot), tag))
 
     def __len__(self) -> int:
         return len(self._queue)

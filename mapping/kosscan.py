@@ -105,11 +105,12 @@ class KosStream:
 
     def __init__(self, det, cfg: Config, run: ScanRun, pool: FramePool, limit: int | None = None,
                  on_frame: Callable[[KosFrame], None] | None = None,
-                 keep_planes: Callable[[DepthItem], bool] | None = None, min_period_ns: int = 0,
+                 cloud: Callable[[DepthItem], int] | None = None, min_period_ns: int = 0,
                  fuse: bool = True) -> None:
         self.det, self.cfg, self.run, self.pool = det, cfg, run, pool
         self.limit = None if limit is None else limit * len(det.depth)
-        self.on_frame, self.keep_planes = on_frame, keep_planes
+        self.on_frame = on_frame
+        self.cloud = cloud  # plane points to keep of a frame (KosFrame.cloud; 0 = none)
         self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
         self._last: dict[str, int] = {}
         self.fuse = fuse  # add the scan fused with the laser to each step (else the step only names its laser)
@@ -157,8 +158,7 @@ class KosStream:
                     inc = cfg.kos.angle_increment_deg or math.degrees(
                         (lambda v: (v[1] - v[0]) / (item.camera.width - 1))(camera_view(item.camera, item.mount)))
                     run.bearings = bearings_for([(item.camera, item.mount)] * 2, inc)
-        keep = self.keep_planes(item) if self.keep_planes else False
-        self.pool.submit(item, run.bearings, keep, self._view())
+        self.pool.submit(item, run.bearings, False, self._view(), self.cloud(item) if self.cloud else 0)
         self.submitted += 1
         return self._collect(False)
 
@@ -205,8 +205,7 @@ class KosStream:
 
 
 def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = None,
-              on_frame: Callable[[KosFrame], None] | None = None, keep_planes: Callable[[int], bool] | None = None,
-              workers: int = 0) -> Iterator[KosStep]:
+              on_frame: Callable[[KosFrame], None] | None = None, workers: int = 0) -> Iterator[KosStep]:
     """Stream the log once: FSPF+ → KOS per depth frame (in `workers` processes; 0 = here), cameras merged per
     step, fused with the nearest laser scan."""
     log = open_log(log_path)
@@ -219,8 +218,7 @@ def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = Non
         if limit is not None:
             run.total_frames = min(run.total_frames, limit * len(det.depth))
         with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-            keep = (lambda item: keep_planes(item.index)) if keep_planes else None
-            stream = KosStream(det, cfg, run, pool, limit, on_frame, keep)
+            stream = KosStream(det, cfg, run, pool, limit, on_frame)
             for rec in log.read(det.wanted()):
                 yield from stream.feed(rec)
                 if stream.stopped:

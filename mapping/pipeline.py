@@ -84,12 +84,21 @@ class SlamFeed:
         self.no_odom = 0
 
     def odom(self, rec: Odometry) -> None:
-        self.wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
+        self.wheel_sample(rec.stamp_ns, rec.x, rec.y, rec.yaw)
+
+    def wheel_sample(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
+        """One wheel odometry pose (what `odom` takes of a record)."""
+        self.wheel.add(stamp_ns, x, y, yaw)
 
     def imu(self, rec) -> None:
         """One Imu record: straight to SLAM (its gyro factors wait for the samples by themselves)."""
         if self.use_imu:
             self.slam.add_imu(rec)
+
+    def gyro(self, stamp_ns: int, yaw_rate: float) -> None:
+        """One gyro sample of an Imu record that has angular velocity (what Slam.add_imu takes of it)."""
+        if self.use_imu:
+            self.slam.add_imu(stamp_ns, yaw_rate)
 
     def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
         """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
@@ -485,13 +494,14 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     writer = csv.writer(csv_fh)
     writer.writerow(STATS_COLUMNS)
 
-    def keep_planes(item: DepthItem) -> bool:
+    def cloud(item: DepthItem) -> int:
+        """Plane points to keep of this frame for the MCAP: a cloud every mcap_planes_period seconds."""
         if cloud_period <= 0:
-            return False
+            return 0
         if state["next_cloud"] is None or item.stamp_ns >= state["next_cloud"] - 1_000_000:  # 1 ms: stamp jitter
             state["next_cloud"] = item.stamp_ns + cloud_period
-            return True
-        return False
+            return bcfg.mcap_plane_points
+        return 0
 
     def on_frame(f: KosFrame) -> None:
         s = f.stats
@@ -502,13 +512,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         writer.writerow([f.index, f.topic, f"{f.stamp_ns * 1e-9:.6f}", f"{s.ineligible_pct:.3f}", f"{s.inlier_pct:.3f}",
                          f"{s.dropped_pct:.3f}", f"{s.outlier_pct:.3f}", s.remaining, s.planes, f.n_points,
                          f"{f.fspf_ms:.3f}", f"{f.kos_ms:.3f}"])
-        if f.planes is not None and len(f.planes.points):
-            pts = f.planes.points
-            cls = f.planes.point_classes()
-            n = bcfg.mcap_plane_points
-            if len(pts) > n:
-                pick = np.sort(np.random.default_rng(f.index).choice(len(pts), n, replace=False))
-                pts, cls = pts[pick], cls[pick]
+        if f.cloud is not None and len(f.cloud[0]):  # subsampled in the frame stage (kosframe.plane_cloud)
+            pts, cls = f.cloud
             mount = stream.cams[f.topic][1]  # set when the topic's first frame was read, before any result
             spill.add_cloud(f.stamp_ns, mount.apply(pts.astype(np.float64)), cls)
         state["frames"] += 1
@@ -589,7 +594,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     stream = None
     if pool is not None:
         min_period = int(1e9 / bcfg.depth_rate) if bcfg.depth_rate > 0 else 0
-        stream = KosStream(det, cfg, run, pool, on_frame=on_frame, keep_planes=keep_planes, min_period_ns=min_period,
+        stream = KosStream(det, cfg, run, pool, on_frame=on_frame, cloud=cloud, min_period_ns=min_period,
                            fuse=False)
     t_begin = time.perf_counter()
     cpu0 = time.process_time()

@@ -40,7 +40,7 @@ def _run(items, workers: int):
     out = []
     with FramePool(fspf, depth, kos, workers, in_flight=2) as pool:  # a ring of 4 slots for 11 frames
         for it in items:
-            pool.submit(it, bearings, keep_planes=it.index % 3 == 0, tag=it.index)
+            pool.submit(it, bearings, keep_planes=it.index % 3 == 0, tag=it.index, cloud_points=50 * (it.index % 2))
             out += list(pool.results())
         out += list(pool.results(wait_all=True))
     return out
@@ -57,6 +57,16 @@ def test_pool_equals_serial():
         assert (a.planes is None) == (b.planes is None)
         if a.planes is not None:
             np.testing.assert_array_equal(a.planes.points, b.planes.points)
+        assert (a.cloud is None) == (b.cloud is None) == (a.index % 2 == 0)
+        if a.cloud is not None:  # at most 50 of the frame's plane points, the same ones either way
+            np.testing.assert_array_equal(a.cloud[0], b.cloud[0])
+            np.testing.assert_array_equal(a.cloud[1], b.cloud[1])
+            assert 0 < len(a.cloud[0]) <= 50
+        if a.planes is not None and a.cloud is not None:  # the cloud: the frame's seeded choice of its plane points
+            n = len(a.planes.points)
+            pick = np.sort(np.random.default_rng(a.index).choice(n, 50, replace=False)) if n > 50 else np.arange(n)
+            np.testing.assert_array_equal(a.cloud[0], a.planes.points[pick])
+            np.testing.assert_array_equal(a.cloud[1], a.planes.point_classes()[pick])
     assert sum(np.isfinite(f.ranges).sum() for f, _ in serial) > 0  # the frames saw something
 
 
