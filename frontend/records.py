@@ -207,8 +207,8 @@ class Odometry:
         return self.stamp_ns * 1e-9
 
 
-def _cov9(v) -> np.ndarray:
-    return np.asarray(v, dtype=np.float64).reshape(9)
+_IMU_FIELDS = (("angular_velocity", 3), ("linear_acceleration", 3), ("orientation", 4), ("orientation_cov", 9),
+               ("angular_velocity_cov", 9), ("linear_acceleration_cov", 9))
 
 
 @dataclass(frozen=True)
@@ -230,12 +230,10 @@ class Imu:
     topic: str = ""
 
     def __post_init__(self) -> None:
-        set_ = object.__setattr__
-        set_(self, "angular_velocity", np.asarray(self.angular_velocity, dtype=np.float64).reshape(3))
-        set_(self, "linear_acceleration", np.asarray(self.linear_acceleration, dtype=np.float64).reshape(3))
-        set_(self, "orientation", np.asarray(self.orientation, dtype=np.float64).reshape(4))
-        for name in ("orientation_cov", "angular_velocity_cov", "linear_acceleration_cov"):
-            set_(self, name, _cov9(getattr(self, name)))
+        for name, n in _IMU_FIELDS:  # float64 arrays of their length (kept as given when they are: 200 Hz records)
+            v = getattr(self, name)
+            if type(v) is not np.ndarray or v.dtype != np.float64 or v.shape != (n,):
+                object.__setattr__(self, name, np.asarray(v, dtype=np.float64).reshape(n))
 
     @property
     def stamp(self) -> float:

@@ -16,6 +16,7 @@ from rosbags.typesys import get_types_from_msg
 from zstandard import ZstdError
 
 from frontend.errors import LogError
+from frontend.logs.cdrfast import DECODERS as _FAST
 from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
 from frontend.logs.convert import to_record, typestore
 from frontend.logs.readahead import read_ahead
@@ -70,6 +71,11 @@ class McapLog(LogReader):
         if msgtype not in ts.fielddefs:
             return None
         data = message.data
+        fast = _FAST.get(msgtype) if enc == "cdr" else None
+        if fast is not None:  # Imu, Odometry: read straight from the bytes (frontend/logs/cdrfast.py)
+            rec = fast(data, channel.topic)
+            if rec is not None:
+                return rec
         if len(data) > 65536:  # a depth image: rosbags slices the CDR header off, which copies bytes (~2 s per 10
             data = memoryview(data)  # minutes of a 30 Hz Kinect); a view's slice does not. The arrays then view data.
         try:

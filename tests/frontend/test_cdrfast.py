@@ -1,0 +1,95 @@
+"""frontend/logs/cdrfast.py: Imu and Odometry read straight from CDR bytes give exactly the records rosbags +
+convert.to_record give (every frame_id length, so every padding before the doubles; NaN and signed values), and
+a message they cannot vouch for (truncated, padded, big endian, no string terminator) is left to rosbags."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from frontend.logs import topics as T
+from frontend.logs.cdrfast import imu, odometry
+from frontend.logs.convert import imu_msg, odometry_msg, to_record, typestore
+from frontend.records import Imu, Odometry
+
+
+def _same(a, b) -> None:
+    assert type(a) is type(b)
+    for f in dataclasses.fields(a):
+        va, vb = getattr(a, f.name), getattr(b, f.name)
+        if isinstance(vb, np.ndarray):
+            assert va.dtype == vb.dtype and va.shape == vb.shape and va.tobytes() == vb.tobytes(), f.name
+        else:
+            assert type(va) is type(vb) and (va == vb or (va != va and vb != vb)), (f.name, va, vb)
+
+
+def _cdr(msg, msgtype: str) -> bytes:
+    return bytes(typestore(2).serialize_cdr(msg, msgtype, little_endian=True))
+
+
+def _reference(raw: bytes, msgtype: str, topic: str):
+    return to_record(typestore(2).deserialize_cdr(raw, msgtype), msgtype, topic)
+
+
+def _imu(rng, frame: str) -> Imu:
+    q = rng.normal(size=4)
+    return Imu(int(rng.integers(0, 2**60)), rng.normal(0, 0.3, 3), rng.normal(0, 1.0, 3), q / np.linalg.norm(q),
+               np.array([-1.0] + [0.0] * 8), rng.random(9), np.r_[np.nan, rng.random(8)], frame, "/imu")
+
+
+@pytest.mark.parametrize("frame", ["", "a", "ab", "abc", "imu", "imu_", "imu_l", "imu_link", "gyro/frame", "kamera_ß"])
+def test_imu_equals_rosbags(frame):
+    rng = np.random.default_rng(len(frame))
+    for _ in range(20):
+        raw = _cdr(imu_msg(typestore(2), _imu(rng, frame)), T.IMU)
+        _same(imu(raw, "/imu"), _reference(raw, T.IMU, "/imu"))
+
+
+@pytest.mark.parametrize("frame,child", [("", ""), ("odom", "base_link"), ("o", "bas"), ("map", "base_footprint_x")])
+def test_odometry_equals_rosbags(frame, child):
+    rng = np.random.default_rng(len(frame) + 7 * len(child))
+    for _ in range(20):
+        o = Odometry(int(rng.integers(0, 2**60)), *rng.normal(0, 50, 2), float(rng.uniform(-3.2, 3.2)), frame, child,
+                     "/odom", float(rng.normal()))
+        raw = _cdr(odometry_msg(typestore(2), o, np.diag(rng.random(6)).reshape(36)), T.ODOMETRY)
+        rec = odometry(raw, "/odom")
+        _same(rec, _reference(raw, T.ODOMETRY, "/odom"))
+        assert rec.x == o.x and rec.child_frame_id == child
+
+
+def test_what_it_cannot_vouch_for_goes_to_rosbags():
+    rng = np.random.default_rng(1)
+    raw = _cdr(imu_msg(typestore(2), _imu(rng, "imu_link")), T.IMU)
+    assert imu(raw[:-8], "/imu") is None  # truncated
+    assert imu(raw + b"\0" * 8, "/imu") is None  # longer than the message (rosbags: size mismatch)
+    assert imu(b"\x00\x00" + raw[2:], "/imu") is None  # big endian
+    assert imu(raw[:4], "/imu") is None
+    bad = bytearray(raw)
+    bad[12:16] = (200).to_bytes(4, "little")  # a frame_id longer than the message
+    assert imu(bytes(bad), "/imu") is None
+    bad = bytearray(raw)
+    bad[16 + 8] = ord("x")  # "imu_link" loses its terminator (16: the string after its length)
+    assert imu(bytes(bad), "/imu") is None
+    o = _cdr(odometry_msg(typestore(2), Odometry(5, 1.0, 2.0, 0.5, "odom", "base_link", "/odom")), T.ODOMETRY)
+    assert odometry(o[:-1], "/odom") is None and odometry(o, "/odom") is not None
+
+
+def test_mcap_reader_uses_it(tmp_path):
+    """A log through McapLog: the same records either way (the reader's fast path is this module)."""
+    from frontend.logs import open_log
+    from frontend.logs.writer import McapWriter
+
+    rng = np.random.default_rng(2)
+    recs = [_imu(rng, "imu_link") for _ in range(30)]
+    recs = [dataclasses.replace(r, stamp_ns=1_000_000 * (i + 1)) for i, r in enumerate(recs)]
+    with McapWriter(tmp_path / "a.mcap") as w:
+        for r in recs:
+            w.write(r, "/imu")
+    with open_log(tmp_path / "a.mcap") as lg:
+        got = list(lg.read(["/imu"]))
+    assert len(got) == 30
+    for a, b in zip(got, recs):
+        ref = _reference(_cdr(imu_msg(typestore(2), b), T.IMU), T.IMU, "/imu")
+        _same(a, ref)
