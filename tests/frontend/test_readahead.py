@@ -163,3 +163,34 @@ def test_mcap_order_is_log_time_order_when_written_out_of_order(tmp_path, late_s
     with open_log(p) as log:
         got = [(r.topic, by_stamp[(r.topic, r.stamp_ns)]) for r in log.read()]
     assert got == expect
+
+
+@pytest.mark.parametrize("topics", [None, ["/scan"], ["/odom", "/scan"], ["/nothing"]])
+def test_log_time_order_equals_mcaps(tmp_path, topics):
+    """frontend/logs/mcap.py's own ordering of an indexed MCAP is mcap's iter_messages(log_time_order=True) message
+    for message: out-of-order chunks, equal log times across and within chunks (ties by chunk, then position)."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+
+    from frontend.logs.mcap import _in_log_time_order
+
+    rng = np.random.default_rng(8)
+    p = tmp_path / "ties.mcap"
+    with open(p, "wb") as fh:
+        w = Writer(fh, chunk_size=2048, compression=CompressionType.ZSTD)
+        w.start()
+        sid = w.register_schema("x", "raw", b"")
+        chans = [w.register_channel(t, "raw", sid) for t in ("/scan", "/odom", "/imu")]
+        for i in range(600):
+            t = 1_000 + 10 * (i // 3) + (int(rng.integers(-40, 40)) if i % 7 == 0 else 0)  # triples share a time
+            w.add_message(chans[i % 3], log_time=t, data=rng.bytes(int(rng.integers(1, 200))), publish_time=t,
+                          sequence=i)
+        w.finish()
+    with open(p, "rb") as fh:
+        summary = make_reader(fh).get_summary()
+        assert len(summary.chunk_indexes) > 20
+        expect = [(c.id, m.log_time, m.sequence, m.data) for _, c, m in
+                  make_reader(fh).iter_messages(topics=topics, log_time_order=True)]
+        got = [(c.id, m.log_time, m.sequence, m.data) for _, c, m in _in_log_time_order(fh, summary, topics)]
+    assert got == expect
+    assert len(got) == (600 if topics is None else 200 * sum(t in ("/scan", "/odom", "/imu") for t in topics))
