@@ -6,6 +6,7 @@ Works with rosbags' message classes for ROS 1 (Noetic) and ROS 2 (Humble); the f
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
@@ -105,9 +106,10 @@ def imu_record(msg, topic: str) -> Imu:
 
 def imu_problem(rec: Imu) -> str | None:
     """Why an IMU sample is unusable (a provided rate or acceleration that is not finite), else None."""
-    if rec.has_angular_velocity and not np.isfinite(rec.angular_velocity).all():
+    # math.isfinite on the three numbers: np.isfinite(...).all() on a 3-vector cost ~3 µs, 200 times a second
+    if rec.has_angular_velocity and not all(map(math.isfinite, rec.angular_velocity.tolist())):
         return "a non-finite angular velocity"
-    if rec.has_linear_acceleration and not np.isfinite(rec.linear_acceleration).all():
+    if rec.has_linear_acceleration and not all(map(math.isfinite, rec.linear_acceleration.tolist())):
         return "a non-finite linear acceleration"
     return None
 
