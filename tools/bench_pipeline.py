@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.benchutil import cpu_model
 from tools.data import REPO
 
 CACHE = REPO / ".kosmap-cache" / "bench"
@@ -315,7 +316,8 @@ def main() -> None:
         rows = [r for r in old.get("runs", []) if _key(r) not in keys] + rows
         rows.sort(key=lambda r: (r["minutes"], r["sets"] != [], r["workers"] == 0, r["sets"]))
     commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=REPO).stdout.strip()
-    doc = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform()},
+    doc = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(), "platform": platform.platform(),
+                       "cpu": cpu_model()},
            "commit": commit + (" (+ local changes)" if _dirty() else ""),
            "target_realtime_factor": 10.0, "runs": rows,
            "accounting": old.get("accounting", []), "accounting_commit": old.get("accounting_commit", old.get("commit")),
@@ -355,7 +357,8 @@ def markdown(doc: dict) -> str:
          "wheel odometry 50 Hz, zstd MCAP), built with the default config, at the depth rate of each row's config (each depth frame kept through FSPF+ "
          "and three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
          "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",
-         f"Machine: {doc.get('machine', {}).get('cpus')} cores, Python {doc.get('machine', {}).get('python')}; "
+         f"Machine: {doc.get('machine', {}).get('cpus')} cores ({doc.get('machine', {}).get('cpu', 'cpu not recorded')}), "
+         f"Python {doc.get('machine', {}).get('python')}; "
          f"code at {doc.get('commit', '?')}" + _older_rows(doc) + ".",
          "", "The machine is shared: the load average (1 min, before and after each build) says how much else ran in "
          "it, the steal (the share of the machine's time its host gave to other guests during the build) how much ran "

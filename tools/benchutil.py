@@ -13,3 +13,17 @@ def pin_one_core() -> str:
         return f"pinned to core {cores[-1]} of {len(cores)}"
     except (AttributeError, OSError):
         return "not pinned"
+
+
+def cpu_model() -> str:
+    """The processor's name and widest vector unit (/proc/cpuinfo): the compiled kernels vectorise twice as wide
+    with AVX-512, so results from machines of one kind compare, others not."""
+    try:
+        with open("/proc/cpuinfo") as fh:
+            info = fh.read()
+    except OSError:
+        return "unknown"
+    name = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")), "unknown")
+    flags = next((ln.split(":", 1)[1].split() for ln in info.splitlines() if ln.startswith("flags")), [])
+    vec = "AVX-512" if "avx512f" in flags else "AVX2" if "avx2" in flags else "no AVX2"
+    return f"{name}, {vec}"
