@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,6 +159,51 @@ def _trace_numba(lo, stamp, sid, c0, r0, x0, y0, ex, ey, hit, l_hit, l_miss, l_m
                 r += sy
 
 
+@njit(cache=True)
+def _beam_ends(ranges, angle_min, inc, range_min, range_max, clear, max_range, sx, sy, sth, c, s, deskew, t_inc, vx,
+               vy, w, res, ex, ey, hit):
+    """GridBuilder.beams and the cell units of add_beams for one scan in one call, the same arithmetic in the same
+    order (numpy's float64 cos and sin are the C library's, as numba's): the beams to trace into ex, ey, hit;
+    returns their count and the cell bounds of their ends (empty bounds when none). Per scan the numpy path made
+    ~40 array calls, ~0.2 ms: a third of the laser map's time and most of a KOS map's."""
+    n = 0
+    cmin = rmin = 1 << 62
+    cmax = rmax = -(1 << 62)
+    for i in range(ranges.shape[0]):
+        r = np.float64(ranges[i])
+        fin = math.isfinite(r)
+        h = fin and r >= range_min and r < range_max
+        no_return = r == math.inf or (fin and r >= range_max)  # REP 117; NaN / -inf / < min: ignored
+        length = r if h else clear
+        if max_range > 0 and h and r > max_range:
+            h = False
+            no_return = True
+            length = max_range
+        if not (h or (no_return and length > 0)):
+            continue
+        a = angle_min + i * inc
+        if deskew:  # frontend/deskew.py deskew_points, then se2.transform_points
+            tau = i * t_inc
+            b = a + w * tau
+            lx = length * math.cos(b) + vx * tau
+            ly = length * math.sin(b) + vy * tau
+            x = sx + c * lx - s * ly
+            y = sy + s * lx + c * ly
+        else:
+            b = a + sth
+            x = sx + length * math.cos(b)
+            y = sy + length * math.sin(b)
+        x /= res
+        y /= res
+        ex[n] = x
+        ey[n] = y
+        hit[n] = h
+        n += 1
+        cx, cy = int(math.floor(x)), int(math.floor(y))
+        cmin, cmax, rmin, rmax = min(cmin, cx), max(cmax, cx), min(rmin, cy), max(rmax, cy)
+    return n, cmin, rmin, cmax, rmax
+
+
 class GridBuilder:
     """A streaming log-odds occupancy grid: `add(pose, scan)` per scan, then `to_occupancy()`.
 
@@ -192,6 +238,8 @@ class GridBuilder:
         self.c0 = self.r0 = 0  # global cell index (floor(x / res), floor(y / res)) of log_odds[0, 0]
         self.n_scans = 0
         self._last: tuple[int, tuple] | None = None  # (stamp, pose) of the previous scan: the twist for de-skewing
+        self._ex = self._ey = np.empty(0)  # the compiled path's beam buffers (_add_compiled)
+        self._hit = np.empty(0, np.bool_)
 
     # -- geometry --------------------------------------------------------------------------------------------------
     def _ensure(self, cmin: int, rmin: int, cmax: int, rmax: int) -> None:
@@ -262,8 +310,36 @@ class GridBuilder:
             if 0 < dt <= self.DESKEW_MAX_GAP_S:
                 twist = sensor_twist(self._last[1], pose, dt, m)
         self._last = (scan.stamp_ns, tuple(float(v) for v in pose))
+        if self.engine == "numba":
+            self._add_compiled(pose, scan, mount, twist)
+            return
         origin, ends, hit, _ = self.beams(pose, scan, mount, twist)
         self.add_beams(origin, ends, hit)
+
+    def _add_compiled(self, pose, scan, mount, twist) -> None:
+        """`beams` then `add_beams`, the beams made in one compiled call (_beam_ends): the same cells."""
+        sx, sy, sth = _compose(pose, self.mount if mount is None else mount)
+        cfg = self.config
+        n = len(scan.ranges)
+        if len(self._ex) < n:
+            self._ex, self._ey, self._hit = np.empty(n), np.empty(n), np.empty(n, np.bool_)
+        deskew = twist is not None and scan.time_increment > 0
+        (vx, vy), w = twist if deskew else ((0.0, 0.0), 0.0)
+        clear = float(np.minimum(cfg.no_return_clear, scan.range_max)) if cfg.no_return_clear > 0 else 0.0
+        k, cmin, rmin, cmax, rmax = _beam_ends(
+            np.asarray(scan.ranges), float(scan.angle_min), float(scan.angle_increment), float(scan.range_min),
+            float(scan.range_max), clear, float(cfg.max_range), float(sx), float(sy), float(sth), float(np.cos(sth)),
+            float(np.sin(sth)), deskew, float(scan.time_increment), float(vx), float(vy), float(w), self.res,
+            self._ex, self._ey, self._hit)
+        self.n_scans += 1
+        if k == 0:
+            return
+        p0x, p0y = float(sx) / self.res, float(sy) / self.res
+        c_start, r_start = math.floor(p0x), math.floor(p0y)
+        self._ensure(min(cmin, c_start), min(rmin, r_start), max(cmax, c_start), max(rmax, r_start))
+        _trace_numba(self.log_odds, self.stamp, self.n_scans, self.c0, self.r0, p0x, p0y, self._ex[:k], self._ey[:k],
+                     self._hit[:k], np.float32(self.l_hit), np.float32(self.l_miss), np.float32(self.l_min),
+                     np.float32(self.l_max))
 
     def add_beams(self, origin: np.ndarray, ends: np.ndarray, hit: np.ndarray) -> None:
         """Integrate beams from `origin` (2,) to `ends` (N×2, map frame); `hit[i]` marks a return at the end."""
