@@ -165,10 +165,13 @@ def test_mcap_order_is_log_time_order_when_written_out_of_order(tmp_path, late_s
     assert got == expect
 
 
-@pytest.mark.parametrize("topics", [None, ["/scan"], ["/odom", "/scan"], ["/nothing"]])
-def test_log_time_order_equals_mcaps(tmp_path, topics):
-    """frontend/logs/mcap.py's own ordering of an indexed MCAP is mcap's iter_messages(log_time_order=True) message
-    for message: out-of-order chunks, equal log times across and within chunks (ties by chunk, then position)."""
+@pytest.mark.parametrize("topics,compression", [(None, "ZSTD"), (["/scan"], "ZSTD"), (["/odom", "/scan"], "ZSTD"),
+                                                (["/nothing"], "ZSTD"), (None, "LZ4"), (["/odom", "/scan"], "NONE")])
+def test_log_time_order_equals_mcaps(tmp_path, topics, compression):
+    """frontend/logs/mcap.py's own chunk reading and ordering of an indexed MCAP is mcap's
+    iter_messages(log_time_order=True) message for message, bytes for bytes: out-of-order chunks, equal log times
+    across and within chunks (ties by chunk, then position), messages large enough to come as views (a depth
+    image), zstd, lz4 and uncompressed chunks."""
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
@@ -177,20 +180,20 @@ def test_log_time_order_equals_mcaps(tmp_path, topics):
     rng = np.random.default_rng(8)
     p = tmp_path / "ties.mcap"
     with open(p, "wb") as fh:
-        w = Writer(fh, chunk_size=2048, compression=CompressionType.ZSTD)
+        w = Writer(fh, chunk_size=2048, compression=getattr(CompressionType, compression))
         w.start()
         sid = w.register_schema("x", "raw", b"")
         chans = [w.register_channel(t, "raw", sid) for t in ("/scan", "/odom", "/imu")]
         for i in range(600):
             t = 1_000 + 10 * (i // 3) + (int(rng.integers(-40, 40)) if i % 7 == 0 else 0)  # triples share a time
-            w.add_message(chans[i % 3], log_time=t, data=rng.bytes(int(rng.integers(1, 200))), publish_time=t,
-                          sequence=i)
+            n = 70_000 + i if i % 50 == 1 else int(rng.integers(1, 200))
+            w.add_message(chans[i % 3], log_time=t, data=rng.bytes(n), publish_time=t, sequence=i)
         w.finish()
     with open(p, "rb") as fh:
         summary = make_reader(fh).get_summary()
         assert len(summary.chunk_indexes) > 20
         expect = [(c.id, m.log_time, m.sequence, m.data) for _, c, m in
                   make_reader(fh).iter_messages(topics=topics, log_time_order=True)]
-        got = [(c.id, m.log_time, m.sequence, m.data) for _, c, m in _in_log_time_order(fh, summary, topics)]
+        got = [(c.id, m.log_time, m.sequence, bytes(m.data)) for _, c, m in _in_log_time_order(fh, summary, topics)]
     assert got == expect
     assert len(got) == (600 if topics is None else 200 * sum(t in ("/scan", "/odom", "/imu") for t in topics))
