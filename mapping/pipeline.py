@@ -795,18 +795,23 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
                        poses_at("laser", kos_stamps), kos_idx)))
     if "laser" in results and len(spill.laser):
         st = np.asarray(spill.laser.stamps, np.int64)
-        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "scans": len(st), "label": "laser"},
-                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st), np.arange(len(st)))))
+        idx = _every(st, bcfg.laser_map_rate)
+        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "scans": len(idx), "label": "laser"},
+                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st), idx)))
     if "laser" in results and len(spill.fused):
         st = np.asarray(spill.fused.stamps, np.int64)
-        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser", "scans": len(st),
+        idx = _every(st, bcfg.laser_map_rate)
+        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser", "scans": len(idx),
                                 "label": "KOS obstacle fused with the laser"},
-                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st), np.arange(len(st)))))
-    futures = []
-    for name, info, (mount, series, band, meta, st, poses, idx) in specs:
+                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st), idx)))
+    # Longest first (beams to trace: scans × beams per scan), so that no long job starts last while the other
+    # worker idles (Graham's LPT rule): the laser and fused maps trace ~4× a KOS map's beams.
+    futures: list = [None] * len(specs)
+    cost = [len(idx) * (series.width // (band[1] if band else 1)) for _, _, (_, series, band, _, _, _, idx) in specs]
+    for k in sorted(range(len(specs)), key=lambda k: -cost[k]):
+        mount, series, band, meta, st, poses, idx = specs[k][2]
         series.close()
-        futures.append(jobs.submit(_grid_job, cfg.grid, mount, str(series.path), series.width, band, meta, st, poses,
-                                   idx))
+        futures[k] = jobs.submit(_grid_job, cfg.grid, mount, str(series.path), series.width, band, meta, st, poses, idx)
     compares.expect([name for name, _, _ in specs])
 
     def poll() -> None:

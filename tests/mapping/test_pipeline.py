@@ -158,6 +158,7 @@ def test_a_log_without_depth_builds_the_laser_map_alone(logs, tmp_path):
     assert m["sources"]["kos"] is False and set(m["slam"]) == {"laser"} and set(m["maps"]) == {"laser"}
     assert m["comparisons"] == {} and m["frames"]["processed"] == 0
     assert m["frames"]["laser_scans_used"] == 25  # 2.5 s at the default 10 Hz of the 40 Hz laser
+    assert m["maps"]["laser"]["scans"] == 13  # of which the map integrates 5 a second ([build] laser_map_rate)
     assert m["slam"]["laser"]["ate"]["rmse"] < 0.05
     assert not (tmp_path / "stats.csv").read_text().splitlines()[1:]  # the header only
     html = (tmp_path / "report.html").read_text()
