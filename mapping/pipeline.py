@@ -414,10 +414,13 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             say(f"SLAM solved in {slam_finish_s:.1f} s; {len(grids)} maps built and written in {maps_s:.1f} s")
             t_cmp = time.perf_counter()
             frames_png: Path | None | bool = True
-            if report and has_depth:  # drawn here while the workers compare (this process would only wait)
-                from mapping.report import frames_figure
+            traj_png: Path | None | bool = True
+            if report:  # drawn here while the workers compare (this process would only wait)
+                from mapping.report import frames_figure, trajectory_figure
 
-                frames_png = frames_figure(out)
+                if has_depth:
+                    frames_png = frames_figure(out)
+                traj_png = trajectory_figure(out, {"sources": {"blueprint": None if blueprint is None else str(blueprint)}})
             comparisons, overlays = compares.finish(out, files, warnings)
             compare_s = time.perf_counter() - t_cmp
         finally:
@@ -440,7 +443,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             from mapping.report import write_report
 
             t_rep = time.perf_counter()
-            files.update(write_report(out, metrics, frames_png))
+            files.update(write_report(out, metrics, frames_png, traj_png))
             metrics["timing"]["report_s"] = time.perf_counter() - t_rep
             metrics["timing"]["total_s"] = time.perf_counter() - t_start
             metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]

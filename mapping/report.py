@@ -396,11 +396,13 @@ def _html(blocks: list[tuple]) -> str:
             f"<style>{CSS}</style></head><body>{''.join(parts)}</body></html>\n")
 
 
-def write_report(out: str | Path, metrics: dict, frames_png: Path | None | bool = True) -> dict[str, Path]:
+def write_report(out: str | Path, metrics: dict, frames_png: Path | None | bool = True,
+                 traj_png: Path | None | bool = True) -> dict[str, Path]:
     """Write trajectories.png, frames.png, report.md and report.html into `out` (beside the run's files).
-    `frames_png`: frames.png when the caller drew it already (None: there is none), True: draw it here."""
+    `frames_png`, `traj_png`: frames.png, trajectories.png when the caller drew them already (None: there is
+    none), True: draw it here."""
     out = Path(out)
-    traj = trajectory_figure(out, metrics)
+    traj = trajectory_figure(out, metrics) if traj_png is True else traj_png
     if frames_png is True:
         frames_png = frames_figure(out) if metrics.get("sources", {}).get("kos") else None
     frames = frames_png
