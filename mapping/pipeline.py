@@ -43,7 +43,7 @@ from frontend.kos import FUSED, OBSTACLE, fuse_with_laser
 from frontend.kosframe import KosFrame
 from frontend.logs import detect_topics, open_log
 from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
-from frontend.records import Odometry, Scan, Transform, Transforms, yaw_to_quat
+from frontend.records import Imu, Odometry, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
 from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
@@ -643,8 +643,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                         f.imu(rec)
                 elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
                     on_laser(rec)
-                if stream is not None:
-                    for step in stream.feed(rec):
+                if stream is not None and not isinstance(rec, (Odometry, Imu)):  # (the 200 + 150 Hz records: nothing
+                    for step in stream.feed(rec):  # for the depth stream, which only steps when it submits a frame)
                         on_step(step)
                 for f in feeds:
                     f.advance(state["t"])

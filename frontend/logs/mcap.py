@@ -6,6 +6,7 @@ STACK.md), so only the container is read with `mcap`.
 
 from __future__ import annotations
 
+import dataclasses
 import heapq
 import io
 import struct
@@ -21,10 +22,13 @@ from rosbags.typesys import get_types_from_msg
 from zstandard import ZstdError
 
 from frontend.errors import LogError
+from frontend.logs import topics as _T
 from frontend.logs.cdrfast import DECODERS as _FAST
 from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
 from frontend.logs.convert import to_record, typestore
 from frontend.logs.readahead import read_ahead
+
+_CAMERA_INFO = _T.CAMERA_INFO
 
 # what a damaged file raises inside mcap: bad lengths (OverflowError, struct.error), bad chunks (ZstdError)
 _DAMAGE = (McapError, EOFError, ValueError, OSError, KeyError, IndexError, OverflowError, struct.error, ZstdError)
@@ -47,6 +51,7 @@ class McapLog(LogReader):
             self.truncated = self._summary is None
             self._summary = None
         self._registered: set[tuple[int, str]] = set()
+        self._infos: dict[str, tuple[bytes, object]] = {}  # per topic: the last CameraInfo's bytes after its stamp, its record
         self._ahead: list = []  # the read-ahead threads of open reads: stopped before the file closes
 
     def close(self) -> None:
@@ -76,6 +81,8 @@ class McapLog(LogReader):
         if msgtype not in ts.fielddefs:
             return None
         data = message.data
+        if msgtype == _CAMERA_INFO and enc == "cdr":
+            return self._camera_info(data, channel.topic, message.log_time)
         fast = _FAST.get(msgtype) if enc == "cdr" else None
         if fast is not None:  # Imu, Odometry: read straight from the bytes (frontend/logs/cdrfast.py)
             rec = fast(data, channel.topic)
@@ -89,6 +96,25 @@ class McapLog(LogReader):
             self._undecodable(channel.topic, message.log_time, e)
             return None
         return to_record(msg, msgtype, channel.topic)
+
+    def _camera_info(self, data, topic: str, log_time: int):
+        """A CameraInfo record; one whose bytes after the stamp equal the topic's previous message's is that record
+        again at its own stamp (a driver sends the same calibration with every frame: 18000 decodes of ~47 µs in
+        10 minutes of a 30 Hz Kinect)."""
+        tail = bytes(data[12:]) if len(data) > 12 and bytes(data[:2]) == b"\x00\x01" else None  # little-endian CDR
+        last = self._infos.get(topic)
+        if tail is not None and last is not None and last[0] == tail:
+            sec, nsec = struct.unpack_from("<iI", data, 4)  # header.stamp, after the 4-byte encapsulation
+            return dataclasses.replace(last[1], stamp_ns=sec * 1_000_000_000 + nsec)
+        try:
+            msg = typestore(2).deserialize_cdr(data, _CAMERA_INFO)
+        except (SerdeError, struct.error, IndexError, ValueError) as e:
+            self._undecodable(topic, log_time, e)
+            return None
+        rec = to_record(msg, _CAMERA_INFO, topic)
+        if tail is not None and rec is not None:
+            self._infos[topic] = (tail, rec)
+        return rec
 
     def _linear(self, topics) -> Iterator[tuple]:
         """Messages in file order from a stream without an index; stops, with a warning, at damage."""

@@ -126,3 +126,25 @@ def test_scan_cdr_and_ros1_round_trip_any_values(ranges, angle_min, inc, stamp):
         r = convert.to_record(back, msgtype, "/scan")
         assert r.stamp_ns == stamp
         np.testing.assert_array_equal(r.ranges, ranges)
+
+
+def test_repeated_camera_infos_read_back_at_their_own_stamps(tmp_path):
+    """The MCAP reader reuses a CameraInfo record when only the stamp changed (frontend/logs/mcap.py
+    _camera_info): each record still has its own stamp, and a changed calibration or frame is decoded anew."""
+    from dataclasses import replace
+
+    base = CameraModel.from_fov(512, 424, np.radians(70.6), np.radians(60.0), "kinect2_ir_optical_frame")
+    base = replace(base, topic="/kinect2/sd/camera_info")
+    other = replace(base, K=base.K * np.array([[1.01], [1.0], [1.0]]))
+    sent = [replace(c, stamp_ns=1_000_000_000 + 33_333_333 * i)
+            for i, c in enumerate([base, base, base, other, other, base, replace(base, frame_id="cam2"), base])]
+    path = tmp_path / "infos.mcap"
+    with open_writer(path) as w:
+        for c in sent:
+            w.write(c)
+    with open_log(path) as log:
+        got = list(log.read())
+    assert len(got) == len(sent)
+    for a, b in zip(sent, got):
+        assert_same(a, b)
+        assert a.stamp_ns == b.stamp_ns
