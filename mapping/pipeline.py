@@ -546,9 +546,9 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         if laser is not None and bcfg.fused_map and laser_feed is not None:
             last = state["last_fused"]
             if last is None or laser.stamp_ns - last >= laser_period - 1_000_000:
-                if state["laser_tf"] is None:
+                if state["laser_tf"] is None:  # its matrix, made once
                     state["laser_tf"] = (lookup_static(statics, "base_link", laser.frame_id)
-                                         or Transform.identity("base_link", laser.frame_id))
+                                         or Transform.identity("base_link", laser.frame_id)).matrix()
                 fused = fuse_with_laser(laser, state["laser_tf"], step.scans[OBSTACLE], KOS_PREFIX + FUSED)
                 if spill.fused.add(fused.stamp_ns, fused.ranges):
                     state["last_fused"] = fused.stamp_ns
