@@ -15,6 +15,7 @@ of the build (main process and workers) per second of log do not, and 2 cores di
 factor the build would reach with both cores to itself ("CPU bound").
 
     --minutes 10 --configs default --merge   # one more run, merged into the existing results
+    --against d984252 --pairs 2              # also the same logs built by that commit's code, alternating with this tree's
 """
 
 from __future__ import annotations
@@ -163,13 +164,46 @@ def _quarters(samples: list[tuple[float, float, float, float]], log_s: float) ->
     return out
 
 
-def run(log: Path, bp: Path, workers: int, sets: list[str]) -> dict:
-    out = CACHE / f"out_{log.stem}_w{workers}_{len(sets)}"
-    p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--one", str(log), str(out), str(workers), str(bp)]
-                       + [f"--set={x}" for x in sets], capture_output=True, text=True, cwd=REPO)
+def run(log: Path, bp: Path, workers: int, sets: list[str], code: Path = REPO) -> dict:
+    """One build in a child process of the code in `code` (this tree, or a worktree of another commit: --against)."""
+    out = CACHE / (f"out_{log.stem}_w{workers}_{len(sets)}" + ("" if code == REPO else f"_{code.name}"))
+    p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--one", str(log.resolve()), str(out), str(workers),
+                        str(bp.resolve())] + [f"--set={x}" for x in sets], capture_output=True, text=True, cwd=code)
     if p.returncode != 0:
-        raise SystemExit(f"build of {log.name} failed:\n{p.stderr[-3000:]}")
+        raise SystemExit(f"build of {log.name} ({code.name}) failed:\n{p.stderr[-3000:]}")
     return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def worktree(rev: str) -> Path:
+    """A git worktree of `rev` under the bench cache (made once): the baseline code of --against."""
+    sha = subprocess.run(["git", "rev-parse", "--short", rev], capture_output=True, text=True, cwd=REPO, check=True).stdout.strip()
+    path = CACHE / f"worktree-{sha}"
+    if not path.is_dir():
+        subprocess.run(["git", "worktree", "add", "--detach", str(path), sha], capture_output=True, text=True, cwd=REPO,
+                       check=True)
+    return path
+
+
+def against(log: Path, bp: Path, workers: int, sets: list[str], base: Path, pairs: int) -> dict:
+    """The same build by `base`'s code and this tree's, alternating (base, this, base, this, …) so that the shared
+    machine's drifting speed falls on both alike; one unmeasured build of each first (numba compiles every kernel
+    a build of this length uses into each tree's own cache). Medians and their ratio."""
+    for code in (base, REPO):
+        run(log, bp, workers, sets, code)
+    runs: dict[str, list[dict]] = {"base": [], "head": []}
+    for _ in range(pairs):
+        runs["base"].append(run(log, bp, workers, sets, base))
+        runs["head"].append(run(log, bp, workers, sets, REPO))
+
+    def summary(rs: list[dict]) -> dict:
+        return {"wall_s": [r["wall_s"] for r in rs], "realtime_factor": [r["metrics"]["timing"]["realtime_factor"] for r in rs],
+                "cpu_s": [r["cpu_main_s"] + r["cpu_workers_s"] for r in rs], "steal_pct": [r.get("steal_pct") for r in rs],
+                "f1": rs[-1].get("f1"), "ate": {k: (v.get("ate") or {}).get("rmse") for k, v in rs[-1]["slam"].items()}}
+
+    b, h = summary(runs["base"]), summary(runs["head"])
+    med = lambda v: float(np.median(v))  # noqa: E731
+    return {"base_commit": base.name.removeprefix("worktree-"), "pairs": pairs, "base": b, "head": h,
+            "speedup_wall": med(b["wall_s"]) / med(h["wall_s"]), "cpu_ratio": med(b["cpu_s"]) / med(h["cpu_s"])}
 
 
 # (label, how to find the function in the profile: file suffix, name), per stage of a serial build
@@ -251,6 +285,9 @@ def main() -> None:
     ap.add_argument("--merge", action="store_true", help="keep the other runs of the existing pipeline.json")
     ap.add_argument("--one", nargs=4, metavar=("LOG", "OUT", "WORKERS", "BLUEPRINT"), help=argparse.SUPPRESS)
     ap.add_argument("--set", action="append", default=[], help=argparse.SUPPRESS)
+    ap.add_argument("--against", metavar="REV",
+                    help="also build each log with REV's code (a git worktree), alternating with this tree's")
+    ap.add_argument("--pairs", type=int, default=2, help="--against: alternating pairs per log (after one warm-up each)")
     ap.add_argument("--rewrite", action="store_true", help="rewrite pipeline.md from pipeline.json")
     ap.add_argument("--account", action="store_true",
                     help="profile one serial build of the 1-minute log per config (--configs), into pipeline.json")
@@ -291,8 +328,20 @@ def main() -> None:
                                 cwd=REPO).stdout.strip() + (" (+ local changes)" if _dirty() else "")
     previous = {_key(r): r for r in old.get("runs", [])}  # the last results, for the ratios
     previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
+    base = worktree(a.against) if a.against else None
+    comparisons = []
     for minutes in a.minutes:
         log, bp = office_log(minutes)
+        if base is not None:
+            for c in a.configs:
+                sets = [] if c == "default" else c.split(",")
+                x = against(log, bp, a.workers, sets, base, a.pairs)
+                x.update({"minutes": minutes, "workers": a.workers, "sets": sets})
+                print(f"{minutes:g} min {' '.join(sets) or 'default'}: {x['base_commit']} "
+                      f"{' '.join(f'{v:.2f}×' for v in x['base']['realtime_factor'])}, this tree "
+                      f"{' '.join(f'{v:.2f}×' for v in x['head']['realtime_factor'])}: {x['speedup_wall']:.2f}× faster, "
+                      f"{x['cpu_ratio']:.2f}× less CPU (medians)", flush=True)
+                comparisons.append(x)
         runs = [(a.workers, [] if c == "default" else c.split(",")) for c in a.configs]
         if minutes == min(a.minutes) and not a.no_serial:
             runs.insert(1, (0, []))
@@ -320,6 +369,7 @@ def main() -> None:
                        "cpu": cpu_model()},
            "commit": commit + (" (+ local changes)" if _dirty() else ""),
            "target_realtime_factor": 10.0, "runs": rows,
+           "against": comparisons or (old.get("against", []) if a.merge else []),
            "accounting": old.get("accounting", []), "accounting_commit": old.get("accounting_commit", old.get("commit")),
            "previous": {"/".join(map(str, _key(r))): {k: v for k, v in r.items() if k != "previous"}
                         for r in previous.values()}}
@@ -463,8 +513,32 @@ def markdown(doc: dict) -> str:
               f"second of log ({1e3 * frame * x['log_s'] / max(1, x['frames']):.1f} ms a frame), reading the log "
               f"{reading:.3f}, the two SLAMs {slam:.3f}, the maps, MCAP, comparisons and report after the pass "
               f"{after:.3f} (profiled); those alone bound the build at {2.0 / (frame + reading + slam + after):.1f}× on 2 cores."]
+    L += against_section(doc)
     L += memory_section(doc)
     return "\n".join(L)
+
+
+def against_section(doc: dict) -> list[str]:
+    """`--against`: the same log built by an older commit and by this code, alternating, in one run."""
+    xs = doc.get("against") or []
+    if not xs:
+        return []
+    L = ["", "## Against an older commit, in the same run", "",
+         "`--against REV`: the same log built by REV's code (a git worktree) and by this code in alternation (REV, "
+         "this, REV, this, …, after one unmeasured build of each), so that the machine's drifting speed falls on both: "
+         "the honest before/after on a shared machine. Real-time factors of each build, in order; ratios of the medians.",
+         "", "| log | config | commit | real-time factor per build | CPU s per build | F1 KOS / laser vs blueprint "
+         "| ATE KOS / laser (m) |", "|---|---|---|---|---|---|---|"]
+    for x in xs:
+        for who, label in (("base", x["base_commit"]), ("head", str(doc.get("commit", "this")).split()[0])):
+            v = x[who]
+            f1 = v.get("f1") or {}
+            L.append(f"| {x['minutes']:g} min | {' '.join(x['sets']) or 'default'} | {label} | "
+                     f"{' '.join(f'{r:.2f}×' for r in v['realtime_factor'])} | {' '.join(f'{c:.0f}' for c in v['cpu_s'])} | "
+                     f"{f1.get('kos_obstacle_vs_blueprint', float('nan')):.3f} / {f1.get('laser_vs_blueprint', float('nan')):.3f} | "
+                     f"{(v['ate'].get('kos') or float('nan')):.4f} / {(v['ate'].get('laser') or float('nan')):.4f} |")
+        L.append(f"| | | ratio | {x['speedup_wall']:.2f}× faster | {x['cpu_ratio']:.2f}× less CPU | | |")
+    return L
 
 
 def _keyframes(r: dict) -> int:
