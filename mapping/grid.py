@@ -316,6 +316,12 @@ class GridBuilder:
         origin, ends, hit, _ = self.beams(pose, scan, mount, twist)
         self.add_beams(origin, ends, hit)
 
+    def previous(self, stamp_ns: int, pose) -> None:
+        """The pose (x, y, yaw of base_link) of the sensor's scan before the next one added, when that scan is not
+        integrated (a map at a lower rate than the scans): the next scan's de-skew twist comes from it, as it would
+        at the full rate."""
+        self._last = (int(stamp_ns), tuple(float(v) for v in pose))
+
     def _add_compiled(self, pose, scan, mount, twist) -> None:
         """`beams` then `add_beams`, the beams made in one compiled call (_beam_ends): the same cells."""
         sx, sy, sth = _compose(pose, self.mount if mount is None else mount)

@@ -735,9 +735,14 @@ def _grid_job(gcfg, mount, path: str, width: int, band: tuple | None, meta: dict
     """One log-odds grid from the spilled scans `idx` (rows of `path`; band k of B per row when `band` = (k, B))."""
     rows = _RowReader(path, width)
     b = GridBuilder(gcfg, mount)
+    last = -1
     try:
         for s in idx:
-            r = rows.get(int(s))
+            s = int(s)
+            if last >= 0 and s - 1 > last:  # scans skipped (a map rate below the scans'): de-skew from the one before
+                b.previous(stamps[s - 1], poses[s - 1])
+            last = s
+            r = rows.get(s)
             if band is not None:
                 n = width // band[1]
                 r = r[band[0] * n:(band[0] + 1) * n]

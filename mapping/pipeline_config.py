@@ -24,9 +24,9 @@ class BuildConfig(StageConfig):
 
     section = "build"
     depth_rate: float = param(10.0, lo=0.0, doc="process at most this many depth frames per second and camera (0 = every frame): SLAM needs ~10 Hz, the maps take 5 Hz, and every frame of a 30 Hz camera costs 3× the CPU for no better map (docs/bench/pipeline.md)", unit="Hz")
-    laser_rate: float = param(10.0, lo=0.0, doc="laser scans used for SLAM and the laser map, at most this many per second (0 = every scan; a laser averaging no more than 1.2× this keeps every scan)", unit="Hz")
+    laser_rate: float = param(10.0, lo=0.0, doc="laser scans used for SLAM, at most this many per second (0 = every scan; a laser averaging no more than 1.2× this keeps every scan); the laser map takes laser_map_rate of them", unit="Hz")
     kos_map_rate: float = param(5.0, lo=0.0, doc="KOS steps integrated into the grids, at most this many per second (0 = every step): at 30 Hz the misses of grazing beams wear thin walls away", unit="Hz")
-    laser_map_rate: float = param(5.0, lo=0.0, doc="laser (and fused) scans integrated into the grids, at most this many per second (0 = every scan SLAM used): half of the 10 Hz SLAM uses gives the same walls at half the tracing", unit="Hz")
+    laser_map_rate: float = param(5.0, lo=0.0, doc="laser (and fused) scans integrated into the grids, at most this many per second (0 = every scan SLAM used): each de-skewed with the twist from the scan before it, as at the full rate", unit="Hz")
     slam_scan: str = param("obstacle", doc="the KOS scan SLAM runs on: obstacle, or a level's name such as h0_75")
     kos_odometry: dict = param(dict(KOS_ODOMETRY), doc="[odometry] values that differ for the KOS scans (a narrow depth scan); a table given replaces this one whole")
     kos_graph: dict = param({}, doc="[graph] values that differ for the KOS scans")

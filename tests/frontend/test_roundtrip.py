@@ -148,3 +148,6 @@ def test_repeated_camera_infos_read_back_at_their_own_stamps(tmp_path):
     for a, b in zip(sent, got):
         assert_same(a, b)
         assert a.stamp_ns == b.stamp_ns
+    # repeats reuse the record before them (its arrays); a changed calibration or frame is a new record
+    assert got[1].K is got[0].K and got[2].K is got[0].K and got[4].K is got[3].K
+    assert got[3].K is not got[2].K and got[5].K is not got[4].K and got[6].K is not got[5].K

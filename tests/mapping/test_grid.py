@@ -193,3 +193,29 @@ def test_compiled_scan_path_equals_beams_then_add_beams():
     assert (fast.c0, fast.r0) == (ref.c0, ref.r0)
     assert np.array_equal(fast.log_odds, ref.log_odds) and np.array_equal(fast.stamp, ref.stamp)
     assert (fast.stamp > 0).sum() > 5000  # the scans did mark the map
+
+
+def test_a_map_below_the_scan_rate_deskews_each_scan_from_the_one_before():
+    """A grid that takes every other scan (laser_map_rate below the laser's): `previous` hands the builder the skipped
+    scan's pose, so each scan is de-skewed with the twist over the 0.1 s before it, not over the 0.2 s since the
+    last scan integrated."""
+    from dataclasses import replace
+
+    from frontend.deskew import sensor_twist
+
+    rng = np.random.default_rng(11)
+    cfg = GridConfig(resolution=0.05, no_return_clear=3.0)
+    mount = (0.1, 0.0, 0.0)
+    poses = [np.array([2.0, 3.0, 0.2]) + k * np.array([0.05, 0.01, 0.08]) for k in range(12)]
+    scans = [replace(scan_at(tuple(p), WORLD, max_range=6.0, noise=0.01, rng=rng), stamp_ns=k * 100_000_000,
+                     time_increment=2e-4) for k, p in enumerate(poses)]
+    got, want, coarse = GridBuilder(cfg, mount), GridBuilder(cfg, mount), GridBuilder(cfg, mount)
+    for k in range(0, len(poses), 2):
+        if k:
+            got.previous(scans[k - 1].stamp_ns, poses[k - 1])
+        got.add(poses[k], scans[k])
+        coarse.add(poses[k], scans[k])  # without `previous`: the twist over 0.2 s
+        want._last = None
+        want._add_compiled(poses[k], scans[k], None, sensor_twist(poses[k - 1], poses[k], 0.1, mount) if k else None)
+    assert np.array_equal(got.log_odds, want.log_odds)
+    assert not np.array_equal(coarse.log_odds, want.log_odds)  # the two twists do differ here
