@@ -351,6 +351,8 @@ def main() -> None:
                       "commit": old_commit})
             r["breakdown_cpu_per_log_s"] = breakdown(r)
             prev = previous.get(_key(r))
+            if prev is not None and prev["metrics"]["frames"]["processed"] != r["metrics"]["frames"]["processed"]:
+                prev = None  # another config under the same name (the default was 30 Hz once) or another log: no ratio
             if prev is not None:
                 r["previous"] = {k: prev[k] for k in ("wall_s", "cpu_main_s", "cpu_workers_s", "maxrss_main_mb",
                                                       "maxrss_worker_mb", "memory", "f1", "commit") if k in prev}
