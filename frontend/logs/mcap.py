@@ -81,8 +81,15 @@ class McapLog(LogReader):
         if msgtype not in ts.fielddefs:
             return None
         data = message.data
-        if msgtype == _CAMERA_INFO and enc == "cdr":
-            return self._camera_info(data, channel.topic, message.log_time)
+        # A CameraInfo whose bytes after the stamp equal the topic's previous one is that record again at its own
+        # stamp: a driver sends the same calibration with every frame (18000 decodes of ~47 µs in 10 minutes of a
+        # 30 Hz Kinect). Little-endian CDR only; the stamp follows the 4-byte encapsulation.
+        info = bytes(data[12:]) if msgtype == _CAMERA_INFO and enc == "cdr" and bytes(data[:2]) == b"\x00\x01" else None
+        if info is not None:
+            last = self._infos.get(channel.topic)
+            if last is not None and last[0] == info:
+                sec, nsec = struct.unpack_from("<iI", data, 4)
+                return dataclasses.replace(last[1], stamp_ns=sec * 1_000_000_000 + nsec)
         fast = _FAST.get(msgtype) if enc == "cdr" else None
         if fast is not None:  # Imu, Odometry: read straight from the bytes (frontend/logs/cdrfast.py)
             rec = fast(data, channel.topic)
@@ -95,25 +102,9 @@ class McapLog(LogReader):
         except (SerdeError, struct.error, IndexError, ValueError) as e:
             self._undecodable(channel.topic, message.log_time, e)
             return None
-        return to_record(msg, msgtype, channel.topic)
-
-    def _camera_info(self, data, topic: str, log_time: int):
-        """A CameraInfo record; one whose bytes after the stamp equal the topic's previous message's is that record
-        again at its own stamp (a driver sends the same calibration with every frame: 18000 decodes of ~47 µs in
-        10 minutes of a 30 Hz Kinect)."""
-        tail = bytes(data[12:]) if len(data) > 12 and bytes(data[:2]) == b"\x00\x01" else None  # little-endian CDR
-        last = self._infos.get(topic)
-        if tail is not None and last is not None and last[0] == tail:
-            sec, nsec = struct.unpack_from("<iI", data, 4)  # header.stamp, after the 4-byte encapsulation
-            return dataclasses.replace(last[1], stamp_ns=sec * 1_000_000_000 + nsec)
-        try:
-            msg = typestore(2).deserialize_cdr(data, _CAMERA_INFO)
-        except (SerdeError, struct.error, IndexError, ValueError) as e:
-            self._undecodable(topic, log_time, e)
-            return None
-        rec = to_record(msg, _CAMERA_INFO, topic)
-        if tail is not None and rec is not None:
-            self._infos[topic] = (tail, rec)
+        rec = to_record(msg, msgtype, channel.topic)
+        if info is not None and rec is not None:
+            self._infos[channel.topic] = (info, rec)
         return rec
 
     def _linear(self, topics) -> Iterator[tuple]:
