@@ -1,4 +1,5 @@
-"""MCAP adapter: the `mcap` library finds and decompresses chunks, rosbags decodes CDR (or ROS 1) messages.
+"""MCAP adapter: the `mcap` library reads the summary (and an unindexed file), our `_chunk_messages` the indexed
+chunks, rosbags decodes CDR (or ROS 1) messages.
 
 mcap_ros2's own decoder walks arrays element by element in Python (~1000× slower on depth images;
 STACK.md), so only the container is read with `mcap`.

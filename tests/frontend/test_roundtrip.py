@@ -130,7 +130,7 @@ def test_scan_cdr_and_ros1_round_trip_any_values(ranges, angle_min, inc, stamp):
 
 def test_repeated_camera_infos_read_back_at_their_own_stamps(tmp_path):
     """The MCAP reader reuses a CameraInfo record when only the stamp changed (frontend/logs/mcap.py
-    _camera_info): each record still has its own stamp, and a changed calibration or frame is decoded anew."""
+    McapLog._decode): each record still has its own stamp, and a changed calibration or frame is decoded anew."""
     from dataclasses import replace
 
     base = CameraModel.from_fov(512, 424, np.radians(70.6), np.radians(60.0), "kinect2_ir_optical_frame")
