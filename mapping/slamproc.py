@@ -2,9 +2,11 @@
 
 Profiled on the 10-minute office log, the two SLAMs held the main thread ~23 s of pass 1's ~90 s while the two
 cores were only ~75 % busy: the main thread (reading, decoding, feeding the frame workers, SLAM) was the
-bottleneck. `RemoteFeed` records the calls a `SlamFeed` gets (odometry, gyro, scans, advance) in order and
-sends them in batches through a pipe to a forked process that replays them on the same `SlamFeed`: SLAM sees
-exactly the inputs it gets in this process, so the maps stay identical to a serial build's.
+bottleneck. `RemoteFeed` records the calls a `SlamFeed` gets (odometry, gyro, scans, advance) and sends them in
+batches through a pipe to a forked process that replays them on the same `SlamFeed`. A batch's wheel and gyro
+samples go as four arrays, replayed ahead of its scans and advances: a scan's prior and its gyro factors depend
+only on the samples around its stamp, never on how far the reading ran ahead (mapping/pipeline.py SlamFeed), so
+the maps stay identical to a serial build's.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import pickle
 import signal
 import threading
 import traceback
+from array import array
 from contextlib import contextmanager
 from typing import Any
 
@@ -108,6 +111,8 @@ class RemoteFeed:
         self.added = self.no_odom = 0  # known once the result came back
         self.peak_rss_mb = 0.0
         self._ops: list[tuple[str, tuple]] = []
+        self._calls = 0  # calls in the batch being recorded (samples included)
+        self._new_samples()
         self._reply: tuple | None = None
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
@@ -117,15 +122,19 @@ class RemoteFeed:
         child.close()
 
     # -- the SlamFeed calls, recorded --------------------------------------------------------------------------
-    # The 50 Hz odometry and 200 Hz gyro records go as the numbers SLAM takes of them: pickling the records (the
-    # Imu's seven numpy arrays) cost the main process ~18 s of the 10-minute office build, and unpickling the SLAM
-    # processes ~10 s.
+    # The 50 Hz odometry and 200 Hz gyro records go as the numbers SLAM takes of them, in arrays: pickling the
+    # records (the Imu's seven numpy arrays) cost the main process ~18 s of the 10-minute office build, and
+    # unpickling the SLAM processes ~10 s; a (name, args) tuple per sample still cost both sides ~2 s each.
     def odom(self, rec) -> None:
-        self._call("wheel_sample", rec.stamp_ns, rec.x, rec.y, rec.yaw)
+        self._wheel_t.append(rec.stamp_ns)
+        self._wheel_p.extend((rec.x, rec.y, rec.yaw))
+        self._counted()
 
     def imu(self, rec) -> None:
         if self.use_imu and rec.has_angular_velocity:  # (Slam.add_imu skips a record without)
-            self._call("gyro", rec.stamp_ns, rec.yaw_rate)
+            self._gyro_t.append(rec.stamp_ns)
+            self._gyro_w.append(rec.yaw_rate)
+            self._counted()
 
     def push(self, stamp_ns: int, points, deskew: tuple | None = None) -> None:
         self._call("push", int(stamp_ns), points, deskew)
@@ -167,15 +176,31 @@ class RemoteFeed:
     # -- plumbing ------------------------------------------------------------------------------------------------
     def _call(self, name: str, *args: Any) -> None:
         self._ops.append((name, args))
-        if len(self._ops) >= self.BATCH:
+        self._counted()
+
+    def _counted(self) -> None:
+        self._calls += 1
+        if self._calls >= self.BATCH:
             self._flush()
+
+    def _new_samples(self) -> None:
+        self._wheel_t, self._wheel_p = array("q"), array("d")  # stamps; x, y, yaw per stamp
+        self._gyro_t, self._gyro_w = array("q"), array("d")  # stamps; yaw rates
+
+    def _batch(self) -> list[tuple[str, tuple]]:
+        """The recorded calls as one message: the samples first (SlamFeed.samples), then the scans and advances."""
+        if self._wheel_t or self._gyro_t:
+            return [("samples", (self._wheel_t, self._wheel_p, self._gyro_t, self._gyro_w))] + self._ops
+        return self._ops
 
     def _flush(self) -> None:
         with _sigint_held():  # a batch is sent whole and once, or not at all
             try:
                 if not self._conn.poll():  # (the child sends nothing before "end" unless it failed)
-                    self._conn.send(self._ops)
+                    self._conn.send(self._batch())
                     self._ops = []
+                    self._calls = 0
+                    self._new_samples()
                     return
             except OSError:  # the child is gone: it may have sent its error first
                 pass

@@ -102,6 +102,11 @@ def test_no_scan_gives_no_result_and_a_dead_child_a_clear_error():
         remote.close()
 
 
+def _calls_in(batch) -> int:
+    """The calls one batch carries: its scans and advances, and its wheel and gyro samples (sent as arrays)."""
+    return sum(len(args[0]) + len(args[2]) if name == "samples" else 1 for name, args in batch)
+
+
 def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
     """SIGINT arriving while a batch is written is handled after it (here Python's handler: KeyboardInterrupt), and
     the batch is neither cut nor sent twice: fed on to the end, SLAM gives exactly the in-process result."""
@@ -116,7 +121,7 @@ def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
     def send_with_ctrl_c(obj):
         if not sent:
             os.kill(os.getpid(), signal.SIGINT)  # arrives while the first batch is being sent
-        sent.append(len(obj))
+        sent.append(_calls_in(obj))
         real_send(obj)
 
     remote._conn.send = send_with_ctrl_c
@@ -185,3 +190,43 @@ def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with
     while alive(child) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not alive(child)
+
+
+def test_samples_go_as_arrays_ahead_of_their_batch_and_give_the_in_process_result():
+    """Wheel and gyro samples reach the child as arrays replayed before the batch's scans (not one tuple each): with
+    a gyro at 4× the scan rate and batches cut mid-run, SLAM still gets exactly what it gets in this process."""
+    from frontend.records import Imu
+
+    def calls():
+        for name, args in _calls():
+            yield name, args
+            if name == "odom":  # a gyro sample beside each odometry sample, and one between
+                t = args[0].stamp_ns
+                for dt in (0, 25_000_000):
+                    yield "imu", (Imu(t + dt, np.array([0.0, 0.0, 1e-3 * (t // 10_000_000 % 7)]), np.zeros(3)),)
+
+    def run(feed):
+        for name, args in calls():
+            getattr(feed, name)(*args)
+        feed.end()
+
+    cfg = load_config(None, [])
+    local = SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True)
+    assert local.use_imu
+    run(local)
+    want = local.result()
+    remote = RemoteFeed(SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True), "laser")
+    remote.BATCH = 37  # batches end mid-step
+    real_send = remote._conn.send
+    sent = []
+    remote._conn.send = lambda obj: (sent.append(obj), real_send(obj))
+    try:
+        run(remote)
+        got = remote.result()
+    finally:
+        remote.close()
+    samples = [args for b in sent for name, args in b if name == "samples"]
+    assert len(samples) > 5 and sum(len(a[2]) for a in samples) == 240  # every gyro sample, in arrays
+    assert all(name != "odom" for b in sent for name, _ in b)
+    assert np.array_equal(got.poses, want.poses) and np.array_equal(got.stamps_ns, want.stamps_ns)
+    assert got.imu_stats == want.imu_stats and got.imu_stats["samples"] == 240 and got.imu_stats["factors"] > 10
