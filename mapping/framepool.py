@@ -9,6 +9,10 @@ With workers, a frame's depth goes through a ring of shared-memory slots (an ano
 the workers fork): the main process copies the image as it came (uint16 mm, 434 KB for a Kinect frame) into a
 slot and sends its number; the worker converts to metres there. Pickling the float32 image through a pipe cost
 both sides ~1 ms per frame (docs/bench/pipeline.md). A slot is reused only after its frame's result came back.
+
+The frames and their results go through one pipe per worker, served by a long task of that worker's
+(`_frame_loop`): the executor's path (a Future, its manager and feeder threads, two shared queues with their
+locks) cost ~0.5 ms of CPU per frame across the processes. The executor keeps the workers for pass 2's jobs.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import dataclasses
 import mmap
 import multiprocessing as mp
 import os
+import pickle
 import signal
 from collections import deque
 from collections.abc import Iterator
@@ -36,6 +41,7 @@ from frontend.records import DepthFrame
 
 _CONFIGS: tuple | None = None  # (fspf, depth, kos) configs of this worker process
 _SLOTS: mmap.mmap | None = None  # the shared depth slots (inherited at fork)
+_PIPES: list | None = None  # (this end, worker's end) of each worker's frame pipe (inherited at fork)
 SLOT_BYTES = 8 << 20  # one slot: up to 8 MB (a 1920×1080 uint16 image is 4 MB); larger frames are pickled
 
 
@@ -69,6 +75,37 @@ def _work(item: DepthItem, bearings: Bearings, keep_planes: bool, cloud_points: 
     return kos_frame(item, fspf_cfg, depth_cfg, kos_cfg, bearings, keep_planes, cloud_points)
 
 
+def _frame_loop(k: int) -> int:
+    """Worker k's pass-1 task: frames from its pipe, each result (or the error it raised) back through it in
+    order, until None."""
+    pipes = _PIPES or []
+    conn = pipes[k][1]
+    for j, (mine, theirs) in enumerate(pipes):  # inherited copies: the parent's ends, the other workers' ends
+        mine.close()
+        if j != k:
+            theirs.close()
+    bearings = None
+    while True:
+        try:
+            msg = conn.recv()
+        except EOFError:  # the parent is gone
+            break
+        if msg is None:
+            break
+        item, b, keep, cloud, slot = msg
+        bearings = b if b is not None else bearings  # sent when it changes
+        try:
+            out: tuple = ("ok", _work(item, bearings, keep, cloud, slot))
+        except Exception as e:  # noqa: BLE001 - the frame's error is the parent's to raise
+            out = ("error", e)
+        try:
+            conn.send(out)
+        except (pickle.PicklingError, TypeError, AttributeError):  # an error that does not pickle: its text
+            conn.send(("error", RuntimeError(f"{type(out[1]).__name__}: {out[1]}")))
+    conn.close()
+    return k
+
+
 def default_workers() -> int:
     """All the cores this process may use."""
     try:
@@ -88,24 +125,38 @@ class FramePool:
         self.configs = (fspf_cfg, depth_cfg, kos_cfg)
         self.workers = int(workers)
         self.in_flight = max(1, in_flight if in_flight is not None else 3 * max(1, self.workers))
-        self._queue: deque[tuple[Any, Any]] = deque()
+        self._queue: deque[list] = deque()  # [worker or None, result or None, tag], in submission order
         self._ex: ProcessPoolExecutor | None = None
         self._slots: mmap.mmap | None = None
         self._n_slots = self.in_flight + 2  # results() leaves at most in_flight + 1 frames outstanding
         self._next_slot = 0
+        self._conns: list = []  # this end of each worker's frame pipe
+        self._waiting: list[deque[list]] = []  # per worker: the queue entries whose results it has not sent yet
+        self._loops: list[Future] = []  # the workers' _frame_loop tasks
+        self._bearings: list = []  # per worker: the Bearings it was last sent
         warmup(fspf_cfg.method)  # compile (or load) the kernels here once: forked workers inherit them instead of compiling each
         if self.workers > 0:
             fork = "fork" in mp.get_all_start_methods()
             ctx = mp.get_context("fork") if fork else None
             if fork:  # anonymous and shared: the forked workers see the same pages; untouched pages cost nothing
-                global _SLOTS
+                global _SLOTS, _PIPES
                 self._slots = _SLOTS = mmap.mmap(-1, self._n_slots * SLOT_BYTES)
+                _PIPES = [ctx.Pipe() for _ in range(self.workers)]  # before the fork: every worker inherits them
             self._ex = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
                                            initargs=(self.configs,))
             # start every worker now, before the caller starts threads (a progress bar): forking a process
             # with other threads running can copy a held lock
             for f in [self._ex.submit(_ping) for _ in range(self.workers)]:
                 f.result()
+            if fork:
+                pipes, _PIPES = _PIPES, None
+                for mine, theirs in pipes:
+                    theirs.close()  # (a worker that dies then ends its pipe: recv raises EOFError here)
+                    self._conns.append(mine)
+                    self._waiting.append(deque())
+                    self._bearings.append(None)
+                # each worker blocks in its loop, so the k-th task goes to a worker of its own
+                self._loops = [self._ex.submit(_frame_loop, k) for k in range(self.workers)]
 
     def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None,
                cloud_points: int = 0) -> None:
@@ -113,8 +164,13 @@ class FramePool:
         of its planes comes back (frontend/kosframe.py kos_frame)."""
         if self._ex is None:
             f = kos_frame(in_meters(item), *self.configs, bearings, keep_planes, cloud_points)
-            self._queue.append((f, tag))
+            self._queue.append([None, ("ok", f), tag])
             return
+        if not self._conns:  # no fork (not Linux): the executor's own path
+            self._queue.append([None, self._ex.submit(_work, item, bearings, keep_planes, cloud_points), tag])
+            return
+        if not self._loops:
+            raise RuntimeError("FramePool.submit after its executor was taken for other jobs")
         d = item.depth
         slot = None
         if self._slots is not None and len(self._queue) < self._n_slots and d.nbytes <= SLOT_BYTES:
@@ -124,7 +180,18 @@ class FramePool:
             np.ndarray(d.shape, d.dtype, buffer=self._slots, offset=k * SLOT_BYTES)[...] = d
             slot = (k, d.dtype.str, d.shape)
             item = dataclasses.replace(item, depth=np.zeros((0,), d.dtype))
-        self._queue.append((self._ex.submit(_work, item, bearings, keep_planes, cloud_points, slot), tag))
+        w = min(range(self.workers), key=lambda j: len(self._waiting[j]))  # the least busy worker
+        if slot is None:  # the image itself goes through the pipe: the worker must be reading, not blocked
+            self._collect(w, len(self._waiting[w]))  # in sending a large result to us, so take its results first
+        b = None if self._bearings[w] is bearings else bearings
+        entry = [w, None, tag]
+        try:
+            self._conns[w].send((item, b, keep_planes, cloud_points, slot))
+        except OSError as e:
+            raise self._died() from e
+        self._bearings[w] = bearings
+        self._waiting[w].append(entry)
+        self._queue.append(entry)
 
     def __len__(self) -> int:
         return len(self._queue)
@@ -133,27 +200,68 @@ class FramePool:
         """(frame, tag) of the finished frames at the head of the queue, in order; waits for the head while more
         than `in_flight` are outstanding, or for everything with `wait_all`."""
         while self._queue:
-            head, tag = self._queue[0]
-            if isinstance(head, Future):
-                if not (wait_all or len(self._queue) > self.in_flight or head.done()):
+            head = self._queue[0]
+            w, res = head[0], head[1]
+            if isinstance(res, Future):
+                if not (wait_all or len(self._queue) > self.in_flight or res.done()):
                     return
                 try:
-                    head = head.result()
+                    res = ("ok", res.result())
                 except BrokenProcessPool as e:
-                    raise KosmapError("a worker process died (out of memory?); rerun with fewer --workers or --workers 0") from e
+                    raise self._died() from e
+            elif res is None:
+                if not (wait_all or len(self._queue) > self.in_flight or self._conns[w].poll()):
+                    return
+                self._collect(w, 1)
+                res = head[1]
             self._queue.popleft()
-            yield head, tag
+            status, value = res
+            if status == "error":
+                raise value
+            yield value, head[2]
+
+    def _collect(self, w: int, n: int) -> None:
+        """Read worker w's next n results into their queue entries (waiting for them)."""
+        for _ in range(n):
+            try:
+                res = self._conns[w].recv()
+            except (EOFError, OSError) as e:
+                raise self._died() from e
+            self._waiting[w].popleft()[1] = res
+
+    @staticmethod
+    def _died() -> KosmapError:
+        return KosmapError("a worker process died (out of memory?); rerun with fewer --workers or --workers 0")
+
+    def _stop_loops(self) -> None:
+        """End the workers' frame loops (their outstanding results read first, so none blocks in sending): the
+        executor is then free for other jobs."""
+        if not self._loops:
+            return
+        loops, self._loops = self._loops, []
+        try:
+            for w in range(len(self._conns)):
+                self._collect(w, len(self._waiting[w]))
+                self._conns[w].send(None)
+            for f in loops:
+                f.result()
+        except (OSError, BrokenProcessPool) as e:
+            raise self._died() from e
 
     @property
     def executor(self) -> ProcessPoolExecutor | None:
-        """The worker processes (None when serial): mapping/pipeline.py runs its grid and comparison jobs there
-        after the frames, instead of forking new workers from a process that has grown meanwhile."""
+        """The worker processes (None when serial), their frame loops ended: mapping/pipeline.py runs its grid and
+        comparison jobs there after the frames, instead of forking new workers from a process that has grown
+        meanwhile. Frames cannot be submitted after this."""
+        self._stop_loops()
         return self._ex
 
     def drop(self) -> None:
         """Forget the queued frames (Ctrl-C): those not started are cancelled, the running ones finish unread; the
         workers stay."""
-        for f, _ in self._queue:
+        for w in range(len(self._conns)):  # a worker's frames in its pipe are done (a few ms): read and dropped
+            self._collect(w, len(self._waiting[w]))
+        for _, f, _ in self._queue:
             if isinstance(f, Future):
                 f.cancel()
         self._queue.clear()
@@ -162,6 +270,14 @@ class FramePool:
         """Stop the workers (dropping queued frames when `cancel`)."""
         self._queue.clear() if cancel else None
         if self._ex is not None:
+            try:
+                self._stop_loops()
+            except KosmapError:
+                pass  # a dead worker: the others' loops end at the EOF of their closed pipes
+            finally:
+                for c in self._conns:
+                    c.close()
+                self._conns = []
             self._ex.shutdown(wait=True, cancel_futures=cancel)
             self._ex = None
         if self._slots is not None:

@@ -77,3 +77,50 @@ def test_uint16_is_millimetres():
     metres = dataclasses.replace(raw, depth=raw.depth.astype(np.float32) * np.float32(0.001))
     a, b = _run([raw], 0)[0][0], _run([metres], 0)[0][0]
     np.testing.assert_array_equal(a.ranges, b.ranges)
+
+
+def test_a_frames_error_comes_back_and_the_workers_then_serve_other_jobs():
+    """A frame that fails in a worker raises its own error here, in its place in the order; after the frames, the
+    same workers run other jobs (pipeline.py's grids and comparisons)."""
+    import pytest
+
+    items = _items(4)
+    bad = dataclasses.replace(items[2], depth=np.zeros((7, 9), np.float32))  # not the camera's 64×48
+    fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
+    bearings = bearings_for([(items[0].camera, items[0].mount)], kos.angle_increment_deg)
+    with FramePool(fspf, depth, kos, 2, in_flight=2) as pool:
+        for it in items[:2] + [bad] + items[3:]:
+            pool.submit(it, bearings, tag=it.index)
+        got = []
+        with pytest.raises(ValueError, match="camera is 64×48 but the depth image is 9×7"):
+            for f, tag in pool.results(wait_all=True):
+                got.append(tag)
+        assert got == [0, 1]
+        pool.drop()
+        assert sorted(pool.executor.map(abs, [-3, -1, 2])) == [1, 2, 3]
+        with pytest.raises(RuntimeError, match="after its executor"):
+            pool.submit(items[0], bearings)
+
+
+def test_a_worker_that_dies_is_a_clear_error_not_a_hang():
+    import os
+    import signal
+
+    import pytest
+
+    from frontend.errors import KosmapError
+
+    items = _items(6)
+    fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
+    bearings = bearings_for([(items[0].camera, items[0].mount)], kos.angle_increment_deg)
+    pool = FramePool(fspf, depth, kos, 2, in_flight=4)
+    try:
+        for pid in list(pool._ex._processes):  # one of the two workers
+            os.kill(pid, signal.SIGKILL)
+            break
+        with pytest.raises(KosmapError, match="worker process died.*--workers 0"):
+            for it in items:
+                pool.submit(it, bearings, tag=it.index)
+            list(pool.results(wait_all=True))
+    finally:
+        pool.close(cancel=True)  # returns: the live worker's loop ends at its pipe's EOF
