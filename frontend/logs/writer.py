@@ -12,7 +12,8 @@ from pathlib import Path
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from frontend.logs import convert
+from frontend.logs import cdrfast, convert
+from frontend.logs import topics as T
 from frontend.records import Record, Scan
 
 
@@ -114,12 +115,20 @@ class McapWriter(LogWriter):
             self._channels[topic] = self._w.register_channel(topic, "cdr", self._schemas[msgtype])
         return self._channels[topic]
 
+    def write(self, rec: Record, topic: str | None = None) -> None:
+        if type(rec) is Scan:  # its CDR written directly (frontend/logs/cdrfast.py): the same bytes, ~10× faster
+            self._add(topic or rec.topic, T.LASER_SCAN, cdrfast.laser_scan(rec), rec.stamp_ns)
+            return
+        super().write(rec, topic)
+
     def write_msg(self, topic: str, msgtype: str, msg, t_ns: int) -> None:
+        self._add(topic, msgtype, bytes(self.ts.serialize_cdr(msg, msgtype)), t_ns)
+
+    def _add(self, topic: str, msgtype: str, data: bytes, t_ns: int) -> None:
         cid = self._channel(topic, msgtype)
         seq = self._seq.get(cid, 0)
         self._seq[cid] = seq + 1
-        data = self.ts.serialize_cdr(msg, msgtype)
-        self._w.add_message(cid, log_time=int(t_ns), data=bytes(data), publish_time=int(t_ns), sequence=seq)
+        self._w.add_message(cid, log_time=int(t_ns), data=data, publish_time=int(t_ns), sequence=seq)
 
     def write_metadata(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (name → string map), e.g. a simulator's settings and truths."""
