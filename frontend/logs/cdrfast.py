@@ -10,8 +10,9 @@ message that fails a check, returns None and goes through rosbags as before (whi
 ROS 2 CDR only (a ROS 1 bag goes through rosbags).
 
 Writing, the build's Foxglove MCAP holds ~40k LaserScans per 10 minutes (four KOS levels, the laser, the fused
-scan); building a rosbags message and serialising it took ~60 µs each. `laser_scan` writes the same bytes
-(tests/frontend/test_cdrfast.py holds it to rosbags') from the record directly.
+scan): building a rosbags message and serialising it took 14 µs for a 512-beam scan, `laser_scan` writes the
+same bytes (tests/frontend/test_cdrfast.py holds it to rosbags') from the record in 3.3 µs; mcap's add_message
+(~20 µs) stays.
 """
 
 from __future__ import annotations

@@ -116,7 +116,7 @@ class McapWriter(LogWriter):
         return self._channels[topic]
 
     def write(self, rec: Record, topic: str | None = None) -> None:
-        if type(rec) is Scan:  # its CDR written directly (frontend/logs/cdrfast.py): the same bytes, ~10× faster
+        if type(rec) is Scan:  # its CDR written directly (frontend/logs/cdrfast.py): the same bytes, 14 → 3 µs
             self._add(topic or rec.topic, T.LASER_SCAN, cdrfast.laser_scan(rec), rec.stamp_ns)
             return
         super().write(rec, topic)
