@@ -98,11 +98,12 @@ def _frame_loop(k: int) -> int:
         try:
             out: tuple = ("ok", _work(item, bearings, keep, cloud, slot))
         except Exception as e:  # noqa: BLE001 - the frame's error is the parent's to raise
+            try:
+                pickle.loads(pickle.dumps(e))  # it must come out at the other end too
+            except Exception:  # noqa: BLE001 - an error that does not pickle: its text
+                e = RuntimeError(f"{type(e).__name__}: {e}")
             out = ("error", e)
-        try:
-            conn.send(out)
-        except (pickle.PicklingError, TypeError, AttributeError):  # an error that does not pickle: its text
-            conn.send(("error", RuntimeError(f"{type(out[1]).__name__}: {out[1]}")))
+        conn.send(out)  # (a closed parent end: BrokenPipeError ends the task)
     conn.close()
     return k
 
@@ -137,27 +138,40 @@ class FramePool:
         self._bearings: list = []  # per worker: the Bearings it was last sent
         warmup(fspf_cfg.method)  # compile (or load) the kernels here once: forked workers inherit them instead of compiling each
         if self.workers > 0:
-            fork = "fork" in mp.get_all_start_methods()
-            ctx = mp.get_context("fork") if fork else None
-            if fork:  # anonymous and shared: the forked workers see the same pages; untouched pages cost nothing
-                global _SLOTS, _PIPES
-                self._slots = _SLOTS = mmap.mmap(-1, self._n_slots * SLOT_BYTES)
-                _PIPES = [ctx.Pipe() for _ in range(self.workers)]  # before the fork: every worker inherits them
-            self._ex = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                           initargs=(self.configs,))
-            # start every worker now, before the caller starts threads (a progress bar): forking a process
-            # with other threads running can copy a held lock
-            for f in [self._ex.submit(_ping) for _ in range(self.workers)]:
-                f.result()
-            if fork:
-                pipes, _PIPES = _PIPES, None
-                for mine, theirs in pipes:
-                    theirs.close()  # (a worker that dies then ends its pipe: recv raises EOFError here)
-                    self._conns.append(mine)
-                    self._waiting.append(deque())
-                    self._bearings.append(None)
-                # each worker blocks in its loop, so the k-th task goes to a worker of its own
-                self._loops = [self._ex.submit(_frame_loop, k) for k in range(self.workers)]
+            try:
+                self._start()
+            except BaseException:
+                global _PIPES
+                for pair in _PIPES or []:
+                    for c in pair:
+                        c.close()
+                _PIPES = None
+                self.close(cancel=True)
+                raise
+
+    def _start(self) -> None:
+        """Fork the workers (with the slots and their frame pipes) and start their frame loops."""
+        fork = "fork" in mp.get_all_start_methods()
+        ctx = mp.get_context("fork") if fork else None
+        if fork:  # anonymous and shared: the forked workers see the same pages; untouched pages cost nothing
+            global _SLOTS, _PIPES
+            self._slots = _SLOTS = mmap.mmap(-1, self._n_slots * SLOT_BYTES)
+            _PIPES = [ctx.Pipe() for _ in range(self.workers)]  # before the fork: every worker inherits them
+        self._ex = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
+                                       initargs=(self.configs,))
+        # start every worker now, before the caller starts threads (a progress bar): forking a process
+        # with other threads running can copy a held lock
+        for f in [self._ex.submit(_ping) for _ in range(self.workers)]:
+            f.result()
+        if fork:
+            pipes, _PIPES = _PIPES, None
+            for mine, theirs in pipes:
+                theirs.close()  # (a worker that dies then ends its pipe: recv raises EOFError here)
+                self._conns.append(mine)
+                self._waiting.append(deque())
+                self._bearings.append(None)
+            # each worker blocks in its loop, so the k-th task goes to a worker of its own
+            self._loops = [self._ex.submit(_frame_loop, k) for k in range(self.workers)]
 
     def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None,
                cloud_points: int = 0) -> None:
@@ -222,13 +236,16 @@ class FramePool:
             yield value, head[2]
 
     def _collect(self, w: int, n: int) -> None:
-        """Read worker w's next n results into their queue entries (waiting for them)."""
+        """Read worker w's next n results into their queue entries (waiting for them). An entry leaves the
+        worker's list before its read, so that a read that fails never leaves the two out of step."""
         for _ in range(n):
+            entry = self._waiting[w].popleft()
             try:
-                res = self._conns[w].recv()
+                entry[1] = self._conns[w].recv()
             except (EOFError, OSError) as e:
                 raise self._died() from e
-            self._waiting[w].popleft()[1] = res
+            except Exception as e:  # noqa: BLE001 - a result that does not unpickle here: that frame's error
+                entry[1] = ("error", e)
 
     @staticmethod
     def _died() -> KosmapError:
@@ -270,20 +287,19 @@ class FramePool:
     def close(self, cancel: bool = False) -> None:
         """Stop the workers (dropping queued frames when `cancel`)."""
         self._queue.clear() if cancel else None
-        if self._ex is not None:
-            try:
-                self._stop_loops()
-            except KosmapError:
-                pass  # a dead worker: the others' loops end at the EOF of their closed pipes
-            finally:
-                for c in self._conns:
-                    c.close()
-                self._conns = []
-            self._ex.shutdown(wait=True, cancel_futures=cancel)
-            self._ex = None
-        if self._slots is not None:
-            self._slots.close()
-            self._slots = None
+        try:
+            # the frame loops end at their pipes' EOF (or in sending to a closed end): nothing is read here, so a
+            # dead worker or an interrupted read cannot make this wait
+            for c in self._conns:
+                c.close()
+            self._conns, self._loops = [], []
+            if self._ex is not None:
+                self._ex.shutdown(wait=True, cancel_futures=cancel)
+                self._ex = None
+        finally:
+            if self._slots is not None:
+                self._slots.close()
+                self._slots = None
 
     def __enter__(self) -> FramePool:
         return self

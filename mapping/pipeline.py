@@ -100,16 +100,6 @@ class SlamFeed:
         if self.use_imu:
             self.slam.add_imu(stamp_ns, yaw_rate)
 
-    def samples(self, wheel_t, wheel_p, gyro_t, gyro_w) -> None:
-        """Wheel poses (stamps; x, y, yaw flattened) and gyro samples (stamps; yaw rates) at once, as
-        mapping/slamproc.py sends a batch's, ahead of its scans: what `wheel_sample` and `gyro` take one by one."""
-        add = self.wheel.add
-        for i, t in enumerate(wheel_t):
-            add(t, wheel_p[3 * i], wheel_p[3 * i + 1], wheel_p[3 * i + 2])
-        if self.use_imu:
-            for t, w in zip(gyro_t, gyro_w):
-                self.slam.add_imu(t, w)
-
     def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
         """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
         beam by beam (time_increment > 0): its points are made once the odometry around its stamp is in,

@@ -2,11 +2,10 @@
 
 Profiled on the 10-minute office log, the two SLAMs held the main thread ~23 s of pass 1's ~90 s while the two
 cores were only ~75 % busy: the main thread (reading, decoding, feeding the frame workers, SLAM) was the
-bottleneck. `RemoteFeed` records the calls a `SlamFeed` gets (odometry, gyro, scans, advance) and sends them in
-batches through a pipe to a forked process that replays them on the same `SlamFeed`. A batch's wheel and gyro
-samples go as four arrays, replayed ahead of its scans and advances: a scan's prior and its gyro factors depend
-only on the samples around its stamp, never on how far the reading ran ahead (mapping/pipeline.py SlamFeed), so
-the maps stay identical to a serial build's.
+bottleneck. `RemoteFeed` records the calls a `SlamFeed` gets (odometry, gyro, scans, advance) in order and
+sends them in batches through a pipe to a forked process that replays them on the same `SlamFeed` in that order:
+SLAM sees exactly the inputs it gets in this process, so the maps stay identical to a serial build's. The calls go
+as arrays (a kind, a stamp and the numbers of each; `_events` reads them back), the scans and the rest as objects.
 """
 
 from __future__ import annotations
@@ -46,6 +45,26 @@ def _as_child(name: str, parent_pid: int) -> None:
         os._exit(1)
 
 
+_WHEEL, _GYRO, _ADVANCE, _OP = 0, 1, 2, 3  # the kinds of recorded call
+
+
+def _events(batch: tuple):
+    """(method, args) of a batch's calls in their order: what RemoteFeed recorded."""
+    kinds, stamps, values, ops = batch
+    v = 0
+    for k, t in zip(kinds, stamps):
+        if k == _WHEEL:
+            yield "wheel_sample", (t, values[v], values[v + 1], values[v + 2])
+            v += 3
+        elif k == _GYRO:
+            yield "gyro", (t, values[v])
+            v += 1
+        elif k == _ADVANCE:
+            yield "advance", (t,)
+        else:
+            yield ops[t]
+
+
 def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
     """The child: replay the parent's calls on `feed`; at "end", send back (status, result or error, scans added,
     scans without odometry, peak RSS MB)."""
@@ -54,7 +73,7 @@ def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
     _as_child(f"slam-{name}", parent_pid)  # 15 characters at most
     try:
         while True:
-            for name, args in conn.recv():
+            for name, args in _events(conn.recv()):
                 if name == "end":
                     feed.end()
                     try:
@@ -110,9 +129,7 @@ class RemoteFeed:
         self.use_odom, self.use_imu = feed.use_odom, feed.use_imu
         self.added = self.no_odom = 0  # known once the result came back
         self.peak_rss_mb = 0.0
-        self._ops: list[tuple[str, tuple]] = []
-        self._calls = 0  # calls in the batch being recorded (samples included)
-        self._new_samples()
+        self._new_batch()
         self._reply: tuple | None = None
         ctx = mp.get_context("fork")
         self._conn, child = ctx.Pipe()
@@ -124,33 +141,32 @@ class RemoteFeed:
     # -- the SlamFeed calls, recorded --------------------------------------------------------------------------
     # The 50 Hz odometry and 200 Hz gyro records go as the numbers SLAM takes of them, in arrays: pickling the
     # records (the Imu's seven numpy arrays) cost the main process ~18 s of the 10-minute office build, and
-    # unpickling the SLAM processes ~10 s. A (name, args) tuple per sample, against these arrays, in two single
-    # builds (±15 % from this machine alone): 21.9 vs 17.7 CPU s on the main thread, 23.3 vs 20.0 s in the SLAMs.
+    # unpickling the SLAM processes ~10 s. A (name, args) tuple per call, against arrays, in two single builds
+    # (±15 % from this machine alone): 21.9 vs 17.7 CPU s on the main thread, 23.3 vs 20.0 s in the SLAMs.
     def odom(self, rec) -> None:
-        self._wheel_t.append(rec.stamp_ns)
-        self._wheel_p.extend((rec.x, rec.y, rec.yaw))
-        self._counted()
+        self._record(_WHEEL, rec.stamp_ns, (rec.x, rec.y, rec.yaw))
 
     def imu(self, rec) -> None:
         if self.use_imu and rec.has_angular_velocity:  # (Slam.add_imu skips a record without)
-            self._gyro_t.append(rec.stamp_ns)
-            self._gyro_w.append(rec.yaw_rate)
-            self._counted()
+            self._record(_GYRO, rec.stamp_ns, (rec.yaw_rate,))
 
     def push(self, stamp_ns: int, points, deskew: tuple | None = None) -> None:
         self._call("push", int(stamp_ns), points, deskew)
 
     def advance(self, now_ns: int | None) -> None:
-        last = self._ops[-1] if self._ops else None
-        if last is not None and last[0] == "advance" and last[1][0] is not None and now_ns is not None:
-            self._ops[-1] = ("advance", (now_ns,))  # advance(a) then advance(b ≥ a) is advance(b): the log's time only grows
-            return
-        self._call("advance", now_ns)
+        if now_ns is None:  # the end of the log: never merged (an object call)
+            self._call("advance", None)
+        elif self._kinds and self._kinds[-1] == _ADVANCE:
+            self._stamps[-1] = now_ns  # advance(a) then advance(b ≥ a) is advance(b): the log's time only grows
+        else:
+            self._record(_ADVANCE, now_ns, ())
 
     def end(self) -> None:
         """No more input: the child hands SLAM the pending scans and solves (both SLAMs at once, beside this
         process)."""
         self._ops.append(("end", ()))
+        self._kinds.append(_OP)
+        self._stamps.append(len(self._ops) - 1)
         self._flush()
 
     def result(self):
@@ -177,31 +193,31 @@ class RemoteFeed:
     # -- plumbing ------------------------------------------------------------------------------------------------
     def _call(self, name: str, *args: Any) -> None:
         self._ops.append((name, args))
-        self._counted()
+        self._record(_OP, len(self._ops) - 1, ())
 
-    def _counted(self) -> None:
-        self._calls += 1
-        if self._calls >= self.BATCH:
+    def _record(self, kind: int, stamp: int, values: tuple) -> None:
+        self._kinds.append(kind)
+        self._stamps.append(stamp)
+        self._values.extend(values)
+        if len(self._kinds) >= self.BATCH:
             self._flush()
 
-    def _new_samples(self) -> None:
-        self._wheel_t, self._wheel_p = array("q"), array("d")  # stamps; x, y, yaw per stamp
-        self._gyro_t, self._gyro_w = array("q"), array("d")  # stamps; yaw rates
+    def _new_batch(self) -> None:
+        self._kinds = array("b")  # per call: _WHEEL, _GYRO, _ADVANCE or _OP
+        self._stamps = array("q")  # its stamp (log time for an advance; for an _OP its index in _ops)
+        self._values = array("d")  # a wheel sample's x, y, yaw; a gyro sample's yaw rate
+        self._ops: list[tuple[str, tuple]] = []  # the scans, advance(None), end
 
-    def _batch(self) -> list[tuple[str, tuple]]:
-        """The recorded calls as one message: the samples first (SlamFeed.samples), then the scans and advances."""
-        if self._wheel_t or self._gyro_t:
-            return [("samples", (self._wheel_t, self._wheel_p, self._gyro_t, self._gyro_w))] + self._ops
-        return self._ops
+    def _batch(self) -> tuple:
+        """The recorded calls as one message (`_events` reads it back)."""
+        return self._kinds, self._stamps, self._values, self._ops
 
     def _flush(self) -> None:
         with _sigint_held():  # a batch is sent whole and once, or not at all
             try:
                 if not self._conn.poll():  # (the child sends nothing before "end" unless it failed)
                     self._conn.send(self._batch())
-                    self._ops = []
-                    self._calls = 0
-                    self._new_samples()
+                    self._new_batch()
                     return
             except OSError:  # the child is gone: it may have sent its error first
                 pass

@@ -37,7 +37,6 @@ from tools.benchutil import cpu_model
 from tools.data import REPO
 
 CACHE = REPO / ".kosmap-cache" / "bench"
-FAST = "build.depth_rate=10"  # every 3rd Kinect frame: the default since 7fb5417 (a row of it repeats "default")
 OUT = REPO / "docs" / "bench"
 
 
@@ -487,20 +486,6 @@ def markdown(doc: dict) -> str:
         for label, _, _ in STAGES:
             L.append(f"| {label} | " + " | ".join(f"{x['stages_cpu_s'].get(label, 0.0) / x['log_s']:.3f}" for x in acc) + " |")
         L.append("| all (profiled) | " + " | ".join(f"{x['cpu_profiled_s'] / x['log_s']:.3f}" for x in acc) + " |")
-    for minutes in sorted({r["minutes"] for r in doc["runs"]}):
-        every = [r for r in doc["runs"] if r["minutes"] == minutes and r["workers"] > 0 and not r["sets"]]
-        fast = [r for r in doc["runs"] if r["minutes"] == minutes and r["workers"] > 0 and r["sets"] == [FAST]]
-        if every and fast:
-            a, b = every[0], fast[0]
-            f1 = lambda r, k: r.get("f1", {}).get(k, float("nan"))  # noqa: E731
-            ate = lambda r: ((r.get("slam", {}).get("kos") or {}).get("ate") or {}).get("rmse", float("nan"))  # noqa: E731
-            L += ["", f"Every Kinect frame or every third: on the {minutes:g}-minute log `{FAST}` needs "
-                  f"{cpu_per_log_s(b):.3f} CPU s per second of log against {cpu_per_log_s(a):.3f} "
-                  f"({cpu_per_log_s(a) / cpu_per_log_s(b):.1f}× less), and its maps are no worse: KOS F1 "
-                  f"{f1(b, 'kos_obstacle_vs_blueprint'):.3f} vs {f1(a, 'kos_obstacle_vs_blueprint'):.3f}, KOS at the "
-                  f"laser's poses {f1(b, 'kos_obstacle_at_laser_poses_vs_blueprint'):.3f} vs "
-                  f"{f1(a, 'kos_obstacle_at_laser_poses_vs_blueprint'):.3f} (the grids take KOS steps at "
-                  f"`kos_map_rate` = 5 Hz either way), KOS SLAM ATE {ate(b):.3f} vs {ate(a):.3f} m."]
     L += ["", "10× real time on 2 cores leaves 0.2 CPU seconds per second of log for everything."]
     for x in acc:
         g = x["stages_cpu_s"]

@@ -123,4 +123,36 @@ def test_a_worker_that_dies_is_a_clear_error_not_a_hang():
                 pool.submit(it, bearings, tag=it.index)
             list(pool.results(wait_all=True))
     finally:
-        pool.close(cancel=True)  # returns: the live worker's loop ends at its pipe's EOF
+        pool.close(cancel=True)  # returns: it reads nothing, and the executor ends the workers of a broken pool
+
+
+class _Odd(Exception):
+    """An exception that pickles but does not unpickle (its __init__ wants two arguments, its args hold one)."""
+
+    def __init__(self, a, b):
+        super().__init__(f"{a}/{b}")
+
+
+def _raise_odd(*args, **kwargs):
+    raise _Odd(1, 2)
+
+
+def test_an_error_that_does_not_unpickle_comes_back_as_its_text_and_close_never_waits(monkeypatch):
+    import pytest
+
+    import mapping.framepool as fp
+
+    items = _items(5)
+    fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
+    bearings = bearings_for([(items[0].camera, items[0].mount)], kos.angle_increment_deg)
+    monkeypatch.setattr(fp, "_work", _raise_odd)  # before the fork: the workers run it
+    with FramePool(fspf, depth, kos, 2, in_flight=2) as pool:
+        pool.submit(items[0], bearings)
+        with pytest.raises(RuntimeError, match="_Odd: 1/2"):
+            list(pool.results(wait_all=True))
+    monkeypatch.undo()
+    pool = FramePool(fspf, depth, kos, 2, in_flight=4)
+    for it in items:  # outstanding, never read
+        pool.submit(it, bearings)
+    pool.close(cancel=True)  # returns: the loops end at their pipes' EOF
+    assert pool.executor is None

@@ -14,7 +14,7 @@ from frontend.records import Odometry
 from mapping.config import load_config
 from mapping.pipeline import SlamFeed
 from mapping.slam import Slam
-from mapping.slamproc import RemoteFeed
+from mapping.slamproc import RemoteFeed, _events
 
 
 def _corridor_scan(x: float, rng) -> np.ndarray:
@@ -103,8 +103,8 @@ def test_no_scan_gives_no_result_and_a_dead_child_a_clear_error():
 
 
 def _calls_in(batch) -> int:
-    """The calls one batch carries: its scans and advances, and its wheel and gyro samples (sent as arrays)."""
-    return sum(len(args[0]) + len(args[2]) if name == "samples" else 1 for name, args in batch)
+    """The calls one batch carries (samples, scans, advances: one kind each)."""
+    return len(batch[0])
 
 
 def test_a_ctrl_c_during_a_send_is_held_until_the_batch_is_whole():
@@ -149,7 +149,10 @@ def test_advance_to_the_end_is_never_merged_away():
         remote.advance(7)  # merged: advance(5) then advance(7) is advance(7)
         remote.advance(None)
         remote.advance(9)  # not merged into the end
-        assert remote._ops == [("advance", (7,)), ("advance", (None,)), ("advance", (9,))]
+        remote.odom(Odometry(9, 1.0, 0.0, 0.0))
+        remote.advance(11)  # a sample between: not merged either
+        assert list(_events(remote._batch())) == [("advance", (7,)), ("advance", (None,)), ("advance", (9,)),
+                                                  ("wheel_sample", (9, 1.0, 0.0, 0.0)), ("advance", (11,))]
     finally:
         remote.close()
 
@@ -192,9 +195,10 @@ def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with
     assert not alive(child)
 
 
-def test_samples_go_as_arrays_ahead_of_their_batch_and_give_the_in_process_result():
-    """Wheel and gyro samples reach the child as arrays replayed before the batch's scans (not one tuple each): with
-    a gyro at 4× the scan rate and batches cut mid-run, SLAM still gets exactly what it gets in this process."""
+def test_samples_go_as_arrays_and_give_the_in_process_result():
+    """Wheel and gyro samples reach the child as numbers in arrays (not a pickled tuple or record each), replayed in
+    their place among the scans: with a gyro at 4× the scan rate and batches cut mid-step, SLAM gets exactly what
+    it gets in this process."""
     from frontend.records import Imu
 
     def calls():
@@ -225,8 +229,49 @@ def test_samples_go_as_arrays_ahead_of_their_batch_and_give_the_in_process_resul
         got = remote.result()
     finally:
         remote.close()
-    samples = [args for b in sent for name, args in b if name == "samples"]
-    assert len(samples) > 5 and sum(len(a[2]) for a in samples) == 240  # every gyro sample, in arrays
-    assert all(name != "odom" for b in sent for name, _ in b)
+    assert len(sent) > 5 and sum(len(b[3]) for b in sent) == 61  # the objects: 60 scans and the end, no sample
+    events = [e for b in sent for e in _events(b)]
+    assert sum(name == "gyro" for name, _ in events) == 240 and sum(name == "wheel_sample" for name, _ in events) == 120
     assert np.array_equal(got.poses, want.poses) and np.array_equal(got.stamps_ns, want.stamps_ns)
     assert got.imu_stats == want.imu_stats and got.imu_stats["samples"] == 240 and got.imu_stats["factors"] > 10
+
+
+def test_scans_released_by_the_odometry_timeout_get_the_in_process_result():
+    """Odometry whose stamps lag the scans by 1.2 s (an unsynced clock): every scan is handed to SLAM by the 1 s
+    timeout, with the samples read by then. Batches cut anywhere must replay the samples exactly in their place
+    among the scans and advances, or the remote SLAM would see samples read later and differ."""
+    from frontend.records import Imu
+
+    def calls():
+        rng = np.random.default_rng(4)
+        for i in range(60):
+            t = int(i * 1e8)
+            lag = t - 1_200_000_000
+            for k in (0, 1):
+                if lag >= 0:
+                    yield "odom", (Odometry(lag + k * 50_000_000, 0.05 * (lag / 1e8) + 0.025 * k, 0.0, 0.0,
+                                            "odom", "base_link", "/odom"),)
+                    yield "imu", (Imu(lag + k * 50_000_000, np.array([0.0, 0.0, 1e-3 * (i % 5)]), np.zeros(3)),)
+            yield "push", (t, _corridor_scan(0.05 * i, rng))
+            yield "advance", (t + 50_000_000,)
+
+    def run(feed):
+        for name, args in calls():
+            getattr(feed, name)(*args)
+        feed.end()
+
+    cfg = load_config(None, [])
+    local = SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True)
+    run(local)
+    want = local.result()
+    for batch in (5, 37, 256):
+        remote = RemoteFeed(SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True), "laser")
+        remote.BATCH = batch
+        try:
+            run(remote)
+            got = remote.result()
+        finally:
+            remote.close()
+        assert np.array_equal(got.odom_poses, want.odom_poses, equal_nan=True), batch
+        assert np.array_equal(got.poses, want.poses) and got.imu_stats == want.imu_stats, batch
+    assert np.isfinite(want.odom_poses).all(axis=1).sum() > 30  # most scans got a (held) odometry prior
