@@ -102,6 +102,18 @@ def test_no_scan_gives_no_result_and_a_dead_child_a_clear_error():
         remote.close()
 
 
+def _run(feed, calls) -> None:
+    for name, args in calls:
+        getattr(feed, name)(*args)
+    feed.end()
+
+
+def _gyro_feed() -> SlamFeed:
+    """A SlamFeed with wheel odometry and the gyro."""
+    cfg = load_config(None, [])
+    return SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True)
+
+
 def _calls_in(batch) -> int:
     """The calls one batch carries (samples, scans, advances: one kind each)."""
     return len(batch[0])
@@ -209,23 +221,17 @@ def test_samples_go_as_arrays_and_give_the_in_process_result():
                 for dt in (0, 25_000_000):
                     yield "imu", (Imu(t + dt, np.array([0.0, 0.0, 1e-3 * (t // 10_000_000 % 7)]), np.zeros(3)),)
 
-    def run(feed):
-        for name, args in calls():
-            getattr(feed, name)(*args)
-        feed.end()
-
-    cfg = load_config(None, [])
-    local = SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True)
+    local = _gyro_feed()
     assert local.use_imu
-    run(local)
+    _run(local, calls())
     want = local.result()
-    remote = RemoteFeed(SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True), "laser")
+    remote = RemoteFeed(_gyro_feed(), "laser")
     remote.BATCH = 37  # batches end mid-step
     real_send = remote._conn.send
     sent = []
     remote._conn.send = lambda obj: (sent.append(obj), real_send(obj))
     try:
-        run(remote)
+        _run(remote, calls())
         got = remote.result()
     finally:
         remote.close()
@@ -255,20 +261,14 @@ def test_scans_released_by_the_odometry_timeout_get_the_in_process_result():
             yield "push", (t, _corridor_scan(0.05 * i, rng))
             yield "advance", (t + 50_000_000,)
 
-    def run(feed):
-        for name, args in calls():
-            getattr(feed, name)(*args)
-        feed.end()
-
-    cfg = load_config(None, [])
-    local = SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True)
-    run(local)
+    local = _gyro_feed()
+    _run(local, calls())
     want = local.result()
     for batch in (5, 37, 256):
-        remote = RemoteFeed(SlamFeed(Slam(cfg.odometry, cfg.graph), True, use_imu=True), "laser")
+        remote = RemoteFeed(_gyro_feed(), "laser")
         remote.BATCH = batch
         try:
-            run(remote)
+            _run(remote, calls())
             got = remote.result()
         finally:
             remote.close()
