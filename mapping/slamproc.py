@@ -141,8 +141,9 @@ class RemoteFeed:
     # -- the SlamFeed calls, recorded --------------------------------------------------------------------------
     # The 50 Hz odometry and 200 Hz gyro records go as the numbers SLAM takes of them, in arrays: pickling the
     # records (the Imu's seven numpy arrays) cost the main process ~18 s of the 10-minute office build, and
-    # unpickling the SLAM processes ~10 s. A (name, args) tuple per call, against arrays, in two single builds
-    # (±15 % from this machine alone): 21.9 vs 17.7 CPU s on the main thread, 23.3 vs 20.0 s in the SLAMs.
+    # unpickling the SLAM processes ~10 s. A pickled (name, args) tuple per call cost, against arrays (with the
+    # samples then replayed ahead of their batch's scans; in order, as now, the child does a little more), in two
+    # single builds (±15 % from this machine alone): 21.9 vs 17.7 CPU s on the main thread, 23.3 vs 20.0 in the SLAMs.
     def odom(self, rec) -> None:
         self._record(_WHEEL, rec.stamp_ns, (rec.x, rec.y, rec.yaw))
 
