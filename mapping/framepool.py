@@ -24,6 +24,7 @@ import multiprocessing as mp
 import os
 import pickle
 import signal
+import traceback
 from collections import deque
 from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
@@ -76,6 +77,16 @@ def _work(item: DepthItem, bearings: Bearings, keep_planes: bool, cloud_points: 
     return kos_frame(item, fspf_cfg, depth_cfg, kos_cfg, bearings, keep_planes, cloud_points)
 
 
+def sendable_error(e: BaseException) -> BaseException:
+    """`e` if it survives a pickle round trip (a child process sends it to the parent, which re-raises it), else a
+    RuntimeError holding its traceback as text."""
+    try:
+        pickle.loads(pickle.dumps(e))
+        return e
+    except Exception:  # noqa: BLE001 - e.g. an __init__ that wants other arguments than its args
+        return RuntimeError("".join(traceback.format_exception(e)))
+
+
 def _frame_loop(k: int) -> int:
     """Worker k's pass-1 task: frames from its pipe, each result (or the error it raised) back through it in
     order, until None."""
@@ -98,11 +109,7 @@ def _frame_loop(k: int) -> int:
         try:
             out: tuple = ("ok", _work(item, bearings, keep, cloud, slot))
         except Exception as e:  # noqa: BLE001 - the frame's error is the parent's to raise
-            try:
-                pickle.loads(pickle.dumps(e))  # it must come out at the other end too
-            except Exception:  # noqa: BLE001 - an error that does not pickle: its text
-                e = RuntimeError(f"{type(e).__name__}: {e}")
-            out = ("error", e)
+            out = ("error", sendable_error(e))
         conn.send(out)  # (a closed parent end: BrokenPipeError ends the task)
     conn.close()
     return k

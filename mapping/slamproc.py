@@ -12,16 +12,14 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
-import pickle
 import signal
 import threading
-import traceback
 from array import array
 from contextlib import contextmanager
 from typing import Any
 
 from frontend.errors import KosmapError
-from mapping.framepool import peak_rss_mb
+from mapping.framepool import peak_rss_mb, sendable_error
 
 
 class SlamProcessError(KosmapError):
@@ -86,12 +84,7 @@ def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:
     except EOFError:  # the parent is gone
         return
     except BaseException as e:  # noqa: BLE001 - anything SLAM raised goes to the parent, which re-raises it
-        err: BaseException = e
-        try:
-            pickle.loads(pickle.dumps(err))  # it must come out at the other end too
-        except Exception:  # an exception that does not pickle: its traceback as text
-            err = RuntimeError(traceback.format_exc())
-        conn.send(("error", err, feed.added, feed.no_odom, peak_rss_mb()))
+        conn.send(("error", sendable_error(e), feed.added, feed.no_odom, peak_rss_mb()))
     finally:
         conn.close()
 
