@@ -309,7 +309,7 @@ class GridBuilder:
             dt = (scan.stamp_ns - self._last[0]) * 1e-9
             if 0 < dt <= self.DESKEW_MAX_GAP_S:
                 twist = sensor_twist(self._last[1], pose, dt, m)
-        self._last = (scan.stamp_ns, tuple(float(v) for v in pose))
+        self.previous(scan.stamp_ns, pose)  # this scan: the next one's twist
         if self.engine == "numba":
             self._add_compiled(pose, scan, mount, twist)
             return
@@ -317,9 +317,9 @@ class GridBuilder:
         self.add_beams(origin, ends, hit)
 
     def previous(self, stamp_ns: int, pose) -> None:
-        """The pose (x, y, yaw of base_link) of the sensor's scan before the next one added, when that scan is not
-        integrated (a map at a lower rate than the scans): the next scan's de-skew twist comes from it, as it would
-        at the full rate."""
+        """The stamp and pose (x, y, yaw of base_link) of the sensor's scan before the next one added: the next
+        scan's de-skew twist comes from it. `add` sets it; a map at a lower rate than the scans sets it for the
+        skipped scan before each one it adds, so the twist is the one at the full rate."""
         self._last = (int(stamp_ns), tuple(float(v) for v in pose))
 
     def _add_compiled(self, pose, scan, mount, twist) -> None:

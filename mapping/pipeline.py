@@ -801,17 +801,13 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
                                                       "scans": len(kos_idx), "label": "KOS obstacle at the laser's poses"},
                       ((0.0, 0.0, 0.0), spill.kos, (bands.index(OBSTACLE), len(bands)), kos_meta, kos_stamps,
                        poses_at("laser", kos_stamps), kos_idx)))
-    if "laser" in results and len(spill.laser):
-        st = np.asarray(spill.laser.stamps, np.int64)
-        idx = _every(st, bcfg.laser_map_rate)
-        specs.append(("laser", {"source": "laser", "level": None, "poses": "laser", "scans": len(idx), "label": "laser"},
-                      (laser_mount, spill.laser, None, spill.laser.meta, st, poses_at("laser", st), idx)))
-    if "laser" in results and len(spill.fused):
-        st = np.asarray(spill.fused.stamps, np.int64)
-        idx = _every(st, bcfg.laser_map_rate)
-        specs.append(("fused", {"source": "fused", "level": FUSED, "poses": "laser", "scans": len(idx),
-                                "label": "KOS obstacle fused with the laser"},
-                      (laser_mount, spill.fused, None, spill.fused.meta, st, poses_at("laser", st), idx)))
+    for name, series, level, label in (("laser", spill.laser, None, "laser"),
+                                       ("fused", spill.fused, FUSED, "KOS obstacle fused with the laser")):
+        if "laser" in results and len(series):  # both on the laser's poses, at laser_map_rate
+            st = np.asarray(series.stamps, np.int64)
+            idx = _every(st, bcfg.laser_map_rate)
+            specs.append((name, {"source": name, "level": level, "poses": "laser", "scans": len(idx), "label": label},
+                          (laser_mount, series, None, series.meta, st, poses_at("laser", st), idx)))
     # Longest first (beams to trace: scans × beams per scan), so that no long job starts last while the other
     # worker idles (Graham's LPT rule): the laser and fused maps trace ~4× a KOS map's beams.
     futures: list = [None] * len(specs)
