@@ -207,8 +207,94 @@ class Odometry:
         return self.stamp_ns * 1e-9
 
 
+@dataclass(frozen=True)
+class OdometrySamples:
+    """Consecutive Odometry records of one topic as columns: what `LogReader.read_batched` hands for a stretch of a
+    50–100 Hz odometry stream (an MCAP chunk's worth), so that it costs a few numpy calls, not a record each."""
+
+    stamps_ns: np.ndarray  # (n,) int64, in the order of the log
+    x: np.ndarray  # (n,) float64
+    y: np.ndarray
+    yaw: np.ndarray
+    z: np.ndarray
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+    topic: str = ""
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    @property
+    def stamp_ns(self) -> int:
+        """The first sample's stamp (where the batch stands in the log's order)."""
+        return int(self.stamps_ns[0])
+
+    @property
+    def end_ns(self) -> int:
+        """The latest sample's stamp: the log has been read this far."""
+        return int(self.stamps_ns.max())
+
+    def records(self) -> list[Odometry]:
+        """The samples as the Odometry records `read` gives."""
+        return [Odometry(int(t), x, y, a, self.frame_id, self.child_frame_id, self.topic, z)
+                for t, x, y, a, z in zip(self.stamps_ns.tolist(), self.x.tolist(), self.y.tolist(), self.yaw.tolist(),
+                                         self.z.tolist())]
+
+
 _IMU_FIELDS = (("angular_velocity", 3), ("linear_acceleration", 3), ("orientation", 4), ("orientation_cov", 9),
                ("angular_velocity_cov", 9), ("linear_acceleration_cov", 9))
+
+
+@dataclass(frozen=True)
+class ImuSamples:
+    """Consecutive Imu records of one topic as columns (n × the Imu's fields): a 200 Hz gyro's stretch of the log
+    (`LogReader.read_batched`), a few numpy calls instead of a record each."""
+
+    stamps_ns: np.ndarray  # (n,) int64, in the order of the log
+    angular_velocity: np.ndarray  # (n, 3) rad/s
+    linear_acceleration: np.ndarray  # (n, 3) m/s²
+    orientation: np.ndarray  # (n, 4) x, y, z, w
+    orientation_cov: np.ndarray  # (n, 9)
+    angular_velocity_cov: np.ndarray  # (n, 9)
+    linear_acceleration_cov: np.ndarray  # (n, 9)
+    frame_id: str = ""
+    topic: str = ""
+
+    def __len__(self) -> int:
+        return len(self.stamps_ns)
+
+    @property
+    def stamp_ns(self) -> int:
+        return int(self.stamps_ns[0])
+
+    @property
+    def end_ns(self) -> int:
+        return int(self.stamps_ns.max())
+
+    @property
+    def has_angular_velocity(self) -> np.ndarray:
+        """Per sample, as Imu.has_angular_velocity (covariance[0] ≠ −1)."""
+        return self.angular_velocity_cov[:, 0] != -1.0
+
+    @property
+    def has_linear_acceleration(self) -> np.ndarray:
+        return self.linear_acceleration_cov[:, 0] != -1.0
+
+    @property
+    def yaw_rate(self) -> np.ndarray:
+        """Per sample, as Imu.yaw_rate."""
+        return self.angular_velocity[:, 2]
+
+    def select(self, keep: np.ndarray) -> ImuSamples:
+        """The samples where `keep` (a boolean mask) is true."""
+        return ImuSamples(self.stamps_ns[keep], *(getattr(self, name)[keep] for name, _ in _IMU_FIELDS),
+                          frame_id=self.frame_id, topic=self.topic)
+
+    def records(self) -> list[Imu]:
+        """The samples as the Imu records `read` gives."""
+        cols = [getattr(self, name) for name, _ in _IMU_FIELDS]
+        return [Imu(int(t), *(c[i] for c in cols), self.frame_id, self.topic)
+                for i, t in enumerate(self.stamps_ns.tolist())]
 
 
 @dataclass(frozen=True)

@@ -43,7 +43,7 @@ from frontend.kos import FUSED, OBSTACLE, fuse_with_laser
 from frontend.kosframe import KosFrame
 from frontend.logs import detect_topics, open_log
 from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
-from frontend.records import Imu, Odometry, Scan, Transform, Transforms, yaw_to_quat
+from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
 from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
@@ -90,6 +90,11 @@ class SlamFeed:
         """One wheel odometry pose (what `odom` takes of a record)."""
         self.wheel.add(stamp_ns, x, y, yaw)
 
+    def wheel_samples(self, stamps_ns: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> None:
+        """Wheel odometry poses in their order (an OdometrySamples' columns)."""
+        for t, a, b, c in zip(stamps_ns.tolist(), x.tolist(), y.tolist(), yaw.tolist()):
+            self.wheel.add(t, a, b, c)
+
     def imu(self, rec) -> None:
         """One Imu record: straight to SLAM (its gyro factors wait for the samples by themselves)."""
         if self.use_imu:
@@ -99,6 +104,12 @@ class SlamFeed:
         """One gyro sample of an Imu record that has angular velocity (what Slam.add_imu takes of it)."""
         if self.use_imu:
             self.slam.add_imu(stamp_ns, yaw_rate)
+
+    def gyro_samples(self, stamps_ns: np.ndarray, yaw_rates: np.ndarray) -> None:
+        """Gyro samples in their order (of an ImuSamples, those with angular velocity)."""
+        if self.use_imu:
+            for t, w in zip(stamps_ns.tolist(), yaw_rates.tolist()):
+                self.slam.add_imu(t, w)
 
     def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
         """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
@@ -614,15 +625,29 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
             task = bar.add_task("build", total=total, rate="–", rt="–",
                                 unit="depth frames" if det.depth else "laser scans")
         try:
-            for rec in lg.read(det.wanted()):
+            for rec in lg.read_batched(det.wanted()):
                 if state["stop"]:
                     raise KeyboardInterrupt
-                st = rec.stamp_ns
+                batch = isinstance(rec, (OdometrySamples, ImuSamples))  # a stretch of samples (read_batched)
+                st = rec.end_ns if batch else rec.stamp_ns
                 if st and (state["t"] is None or st > state["t"]):
                     state["t"] = st
                     if state["t0"] is None:
-                        state["t0"] = st
-                if isinstance(rec, Odometry):
+                        state["t0"] = rec.stamp_ns
+                if batch:
+                    if rec.topic == det.ground_truth:
+                        gt.extend(np.column_stack((rec.stamps_ns * 1e-9, rec.x, rec.y, rec.yaw)).ravel().tolist())
+                        continue
+                    if isinstance(rec, OdometrySamples) and rec.topic == det.odom:
+                        if state["base"] == "base_link" and rec.child_frame_id:
+                            state["base"] = rec.child_frame_id.lstrip("/") or "base_link"
+                        for f in feeds:
+                            f.wheel_samples(rec.stamps_ns, rec.x, rec.y, rec.yaw)
+                    elif isinstance(rec, ImuSamples) and det.imu and rec.topic == det.imu:
+                        ok = rec.has_angular_velocity  # (Slam.add_imu skips a sample without)
+                        for f in feeds:
+                            f.gyro_samples(rec.stamps_ns[ok], rec.yaw_rate[ok])
+                elif isinstance(rec, Odometry):
                     if rec.topic == det.ground_truth:
                         gt.extend((rec.stamp_ns * 1e-9, rec.x, rec.y, rec.yaw))
                         continue
@@ -643,8 +668,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                         f.imu(rec)
                 elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
                     on_laser(rec)
-                if stream is not None and not isinstance(rec, (Odometry, Imu)):  # (the 200 + 150 Hz records: nothing
-                    for step in stream.feed(rec):  # for the depth stream, which only steps when it submits a frame)
+                if stream is not None and not batch and not isinstance(rec, (Odometry, Imu)):  # (the 200 + 150 Hz
+                    for step in stream.feed(rec):  # records: nothing for the depth stream, which only steps when it submits a frame)
                         on_step(step)
                 for f in feeds:
                     f.advance(state["t"])

@@ -18,6 +18,8 @@ from array import array
 from contextlib import contextmanager
 from typing import Any
 
+import numpy as np
+
 from frontend.errors import KosmapError
 from mapping.framepool import peak_rss_mb, sendable_error
 
@@ -144,6 +146,13 @@ class RemoteFeed:
         if self.use_imu and rec.has_angular_velocity:  # (Slam.add_imu skips a record without)
             self._record(_GYRO, rec.stamp_ns, (rec.yaw_rate,))
 
+    def wheel_samples(self, stamps_ns, x, y, yaw) -> None:
+        self._record_many(_WHEEL, stamps_ns, (x, y, yaw))
+
+    def gyro_samples(self, stamps_ns, yaw_rates) -> None:
+        if self.use_imu:
+            self._record_many(_GYRO, stamps_ns, (yaw_rates,))
+
     def push(self, stamp_ns: int, points, deskew: tuple | None = None) -> None:
         self._call("push", int(stamp_ns), points, deskew)
 
@@ -193,6 +202,17 @@ class RemoteFeed:
         self._kinds.append(kind)
         self._stamps.append(stamp)
         self._values.extend(values)
+        if len(self._kinds) >= self.BATCH:
+            self._flush()
+
+    def _record_many(self, kind: int, stamps, columns: tuple) -> None:
+        """Samples of one kind: `_record` of each, the numbers of sample i being column[i] of each column."""
+        n = len(stamps)
+        if not n:
+            return
+        self._kinds.frombytes(bytes([kind]) * n)
+        self._stamps.frombytes(np.ascontiguousarray(stamps, np.int64).tobytes())
+        self._values.frombytes(np.column_stack(columns).astype(np.float64).tobytes())
         if len(self._kinds) >= self.BATCH:
             self._flush()
 

@@ -8,8 +8,10 @@ from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from frontend.logs.convert import imu_problem
-from frontend.records import Imu, Record
+import numpy as np
+
+from frontend.logs.convert import imu_problem, imu_samples_problems
+from frontend.records import Imu, ImuSamples, Record
 
 
 @dataclass
@@ -68,18 +70,36 @@ class LogReader(ABC):
         Messages of types kosmap does not use are skipped. Memory stays flat in the log's length.
         """
 
+    def read_batched(self, topics: Iterable[str] | None = None) -> Iterator:
+        """`read`, where the reader may hand a stretch of Imu or Odometry messages of one topic as one ImuSamples or
+        OdometrySamples record, in the place of its first sample (the MCAP reader does; others give `read`'s)."""
+        return self.read(topics)
+
     def _usable(self, rec):
-        """The record, or None (with one warning per topic) for an IMU sample with non-finite values."""
+        """The record, or None (with one warning per topic) for an IMU sample with non-finite values; of an
+        ImuSamples, the usable samples (None when none is)."""
+        if isinstance(rec, ImuSamples):
+            bad = imu_samples_problems(rec)
+            if bad is None:
+                return rec
+            for i in np.flatnonzero(bad != "")[:1]:  # the first one's warning, as `read` gives it
+                self._bad_sample(rec.topic, str(bad[i]), int(rec.stamps_ns[i]))
+            self._bad_imu[rec.topic] += int((bad != "").sum()) - 1
+            ok = bad == ""
+            return rec.select(ok) if ok.any() else None
         if isinstance(rec, Imu):
             why = imu_problem(rec)
             if why is not None:
-                bad = self._bad_imu
-                if rec.topic not in bad:
-                    self._warn(f"IMU on {rec.topic} has {why} (first at t={rec.stamp:.3f} s); such samples are "
-                               f"skipped: check the IMU driver, or pass --imu-topic none to map without it")
-                bad[rec.topic] = bad.get(rec.topic, 0) + 1
+                self._bad_sample(rec.topic, why, rec.stamp_ns)
                 return None
         return rec
+
+    def _bad_sample(self, topic: str, why: str, stamp_ns: int) -> None:
+        bad = self._bad_imu
+        if topic not in bad:
+            self._warn(f"IMU on {topic} has {why} (first at t={stamp_ns * 1e-9:.3f} s); such samples are "
+                       f"skipped: check the IMU driver, or pass --imu-topic none to map without it")
+        bad[topic] = bad.get(topic, 0) + 1
 
     def _undecodable(self, topic: str, t_ns: int, err: Exception) -> None:
         """A message whose bytes do not decode as its type (damage inside a chunk): skipped, one warning a topic."""

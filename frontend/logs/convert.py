@@ -114,6 +114,15 @@ def imu_problem(rec: Imu) -> str | None:
     return None
 
 
+def imu_samples_problems(rec) -> np.ndarray | None:
+    """`imu_problem` of each sample of an ImuSamples ("" where usable), or None when every sample is usable."""
+    gyro = rec.has_angular_velocity & ~np.isfinite(rec.angular_velocity).all(axis=1)
+    acc = rec.has_linear_acceleration & ~np.isfinite(rec.linear_acceleration).all(axis=1)
+    if not (gyro.any() or acc.any()):
+        return None
+    return np.where(gyro, "a non-finite angular velocity", np.where(acc, "a non-finite linear acceleration", ""))
+
+
 # ---- records → messages (for the writers) --------------------------------------------------------------------------
 
 def _time(ts, t_ns: int):

@@ -275,3 +275,51 @@ def test_scans_released_by_the_odometry_timeout_get_the_in_process_result():
         assert np.array_equal(got.odom_poses, want.odom_poses, equal_nan=True), batch
         assert np.array_equal(got.poses, want.poses) and got.imu_stats == want.imu_stats, batch
     assert np.isfinite(want.odom_poses).all(axis=1).sum() > 30  # most scans got a (held) odometry prior
+
+
+def test_samples_in_columns_give_the_per_sample_result():
+    """wheel_samples / gyro_samples (an OdometrySamples' or ImuSamples' columns, what the build hands over for a
+    stretch of the log) give exactly what one call per sample gives, in this process and in a SLAM process."""
+    from frontend.records import Imu
+
+    def per_sample():
+        for name, args in _calls():
+            yield name, args
+            if name == "odom":
+                t = args[0].stamp_ns
+                yield "imu", (Imu(t + 10_000_000, np.array([0.0, 0.0, 1e-3 * (t // 10_000_000 % 7)]), np.zeros(3)),)
+
+    def in_columns():
+        wheel, gyro = [], []
+        for name, args in per_sample():
+            if name == "odom":
+                o = args[0]
+                wheel.append((o.stamp_ns, o.x, o.y, o.yaw))
+                continue
+            if name == "imu":
+                gyro.append((args[0].stamp_ns, args[0].yaw_rate))
+                continue
+            if wheel:  # the stretch before this scan: wheel columns, then gyro columns (as a chunk's batches come)
+                t, x, y, a = (np.array(c) for c in zip(*wheel))
+                yield "wheel_samples", (t.astype(np.int64), x, y, a)
+                t, w = (np.array(c) for c in zip(*gyro))
+                yield "gyro_samples", (t.astype(np.int64), w)
+                wheel, gyro = [], []
+            yield name, args
+
+    local = _gyro_feed()
+    _run(local, per_sample())
+    want = local.result()
+    columns = _gyro_feed()
+    _run(columns, in_columns())
+    got = columns.result()
+    assert np.array_equal(got.poses, want.poses) and got.imu_stats == want.imu_stats
+    assert got.imu_stats["samples"] == 120 and got.imu_stats["factors"] > 10
+    remote = RemoteFeed(_gyro_feed(), "laser")
+    remote.BATCH = 37
+    try:
+        _run(remote, in_columns())
+        got = remote.result()
+    finally:
+        remote.close()
+    assert np.array_equal(got.poses, want.poses) and got.imu_stats == want.imu_stats
