@@ -67,6 +67,21 @@ class GyroBuffer:
         self.t.append(stamp_ns)
         self.w.append(rate)
 
+    def add_many(self, stamps_ns: np.ndarray, rates: np.ndarray) -> None:
+        """`add` of each sample in order. Finite rates at rising stamps, no two in a row equal (a gyro's usual
+        stream, which cannot start or extend a stuck run) are appended at once; anything else goes one by one."""
+        t, w = np.asarray(stamps_ns, np.int64), np.asarray(rates, np.float64)
+        if not len(t):
+            return
+        if (np.isfinite(w).all() and (np.diff(t) > 0).all() and (w[1:] != w[:-1]).all()
+                and not (self.t and (t[0] <= self.t[-1] or w[0] == self.w[-1]))):
+            self.t.extend(t.tolist())
+            self.w.extend(w.tolist())
+            self._run_start = None
+            return
+        for a, b in zip(t.tolist(), w.tolist()):
+            self.add(a, b)
+
     def covers(self, stamp_ns: int) -> bool:
         """A sample at or after `stamp_ns` has arrived (the interval ending there can be integrated)."""
         return bool(self.t) and self.t[-1] >= stamp_ns

@@ -108,8 +108,7 @@ class SlamFeed:
     def gyro_samples(self, stamps_ns: np.ndarray, yaw_rates: np.ndarray) -> None:
         """Gyro samples in their order (of an ImuSamples, those with angular velocity)."""
         if self.use_imu:
-            for t, w in zip(stamps_ns.tolist(), yaw_rates.tolist()):
-                self.slam.add_imu(t, w)
+            self.slam.add_imu_many(stamps_ns, yaw_rates)
 
     def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
         """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken

@@ -123,6 +123,14 @@ class Slam:
         self.gyro.add(int(stamp_ns), float(yaw_rate))
         self.imu_stats["samples"] += 1
 
+    def add_imu_many(self, stamps_ns: np.ndarray, yaw_rates: np.ndarray) -> None:
+        """`add_imu(stamp, yaw_rate)` of each sample in order (an ImuSamples' stretch, or a batch from the build)."""
+        if not self.gcfg.imu or not len(stamps_ns):
+            return
+        self.expect_imu = True
+        self.gyro.add_many(stamps_ns, yaw_rates)
+        self.imu_stats["samples"] += len(stamps_ns)
+
     def _gyro_settled(self, stamp_ns: int, now_ns: int) -> bool:
         """The scans have reached `gyro_stuck_s` past the stamp and the samples cover it: a stuck run that began
         before it has been seen. Decided at scan times only, never by how far the reader ran ahead of the scans

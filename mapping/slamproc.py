@@ -48,21 +48,31 @@ def _as_child(name: str, parent_pid: int) -> None:
 _WHEEL, _GYRO, _ADVANCE, _OP = 0, 1, 2, 3  # the kinds of recorded call
 
 
+_WIDTH = np.array([3, 1, 0, 0])  # the numbers each kind of call carries
+
+
 def _events(batch: tuple):
-    """(method, args) of a batch's calls in their order: what RemoteFeed recorded."""
+    """(method, args) of a batch's calls in their order: what RemoteFeed recorded, a run of wheel or gyro samples as
+    one `wheel_samples` / `gyro_samples` call with their columns (the same as a call each)."""
     kinds, stamps, values, ops = batch
-    v = 0
-    for k, t in zip(kinds, stamps):
-        if k == _WHEEL:
-            yield "wheel_sample", (t, values[v], values[v + 1], values[v + 2])
-            v += 3
-        elif k == _GYRO:
-            yield "gyro", (t, values[v])
-            v += 1
-        elif k == _ADVANCE:
-            yield "advance", (t,)
-        else:
-            yield ops[t]
+    k = np.frombuffer(kinds, np.int8)
+    t = np.frombuffer(stamps, np.int64)
+    v = np.frombuffer(values, np.float64)
+    off = np.concatenate(([0], np.cumsum(_WIDTH[k])))
+    cut = np.flatnonzero(np.diff(k)) + 1
+    for a, b in zip(np.concatenate(([0], cut)).tolist(), np.concatenate((cut, [len(k)])).tolist()):
+        kind = int(k[a]) if b > a else -1
+        if kind == _WHEEL:
+            xyz = v[off[a]:off[b]].reshape(-1, 3)
+            yield "wheel_samples", (t[a:b], xyz[:, 0], xyz[:, 1], xyz[:, 2])
+        elif kind == _GYRO:
+            yield "gyro_samples", (t[a:b], v[off[a]:off[b]])
+        elif kind == _ADVANCE:
+            for s in t[a:b].tolist():
+                yield "advance", (s,)
+        elif kind == _OP:
+            for j in t[a:b].tolist():
+                yield ops[j]
 
 
 def _serve(feed, conn, parent_end, name: str, parent_pid: int) -> None:

@@ -198,3 +198,33 @@ def test_calibrating_while_running_rebases_the_running_estimate(seed):
     rebased, _ = _running_vs_batch(True, seed)
     assert b == pytest.approx(0.1, abs=0.02)
     assert kept > 2.0 and rebased < 0.3, (rebased, kept)
+
+
+def test_add_many_is_add_of_each():
+    """GyroBuffer.add_many gives the buffer, stuck runs and drop count that `add` of each sample gives: a clean stream
+    (appended at once), and streams with a repeated value, a stuck stretch, NaN and out-of-order stamps (one by one)."""
+    rng = np.random.default_rng(5)
+    t = np.cumsum(rng.integers(4_000_000, 6_000_000, 600)).astype(np.int64)
+    w = rng.normal(0, 0.2, 600)
+    streams = [w.copy()]
+    s = w.copy()
+    s[100:400] = 0.125  # stuck for 1.5 s
+    streams.append(s)
+    s = w.copy()
+    s[50] = np.nan
+    s[51] = s[52]
+    streams.append(s)
+    found = []
+    for k, rates in enumerate(streams):
+        stamps = t.copy()
+        if k == 2:
+            stamps[300] = stamps[299]  # a duplicate stamp
+        one, many = GyroBuffer(), GyroBuffer()
+        for a, b in zip(stamps.tolist(), rates.tolist()):
+            one.add(a, b)
+        for lo, hi in ((0, 7), (7, 250), (250, 251), (251, 600)):  # pieces, as a log's stretches come
+            many.add_many(stamps[lo:hi], rates[lo:hi])
+        assert (many.t, many.w, many.stuck, many.dropped, many._run_start) == (one.t, one.w, one.stuck, one.dropped,
+                                                                              one._run_start), k
+        found.append((len(one.stuck), one.dropped))
+    assert found == [(0, 0), (1, 0), (0, 2)]  # the stuck stretch found, the NaN and the duplicate dropped
