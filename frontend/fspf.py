@@ -101,6 +101,10 @@ def frame_seed(cfg: FspfConfig, index: int) -> int:
     return int(cfg.seed) + int(index)
 
 
+# The kernels below use numba's numpy error model: a division is a plain division (inf/NaN on a zero divisor, as in
+# numpy) instead of a test that raises ZeroDivisionError and ends the build. The same planes, bit for bit, on 300
+# frames of the office log; 4–18 % less FSPF+ time in three alternating runs on this machine.
+
 # ---- random numbers: xorshift64 seeded by splitmix64 (fast inside numba, reproducible) --------------------------------
 
 _M64 = (1 << 64) - 1
@@ -114,7 +118,7 @@ def _rng_state(seed: int) -> np.ndarray:
     return np.array([z or 0x2545F4914F6CDD1D], dtype=np.uint64)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _next(state):
     x = state[0]
     x ^= x << np.uint64(13)
@@ -124,13 +128,13 @@ def _next(state):
     return x
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _randint(state, n):
     """Uniform integer in [0, n)."""
     return np.int64((_next(state) >> np.uint64(11)) % np.uint64(n))
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _uniform(state):
     """Uniform float in [0, 1)."""
     return np.float64(_next(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
@@ -138,7 +142,7 @@ def _uniform(state):
 
 # ---- shared numba pieces -------------------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
     """planes.classify for one normal (thesis Alg. 6, plus slanted and raised); keep the two identical."""
     cu = nx * up[0] + ny * up[1] + nz * up[2]
@@ -162,7 +166,7 @@ def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max
     return 5
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _classify_many_nb(normals, offsets, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
     out = np.empty(len(offsets), np.int8)
     for k in range(len(offsets)):
@@ -171,7 +175,7 @@ def _classify_many_nb(normals, offsets, up, fwd, left, sl_min, sl_max, cam_h, gr
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _refit_nb(wx, wy, wz, act, n):
     """Least-squares plane through the points act[:n]: smallest eigenvector of their covariance."""
     mx = my = mz = 0.0
@@ -201,7 +205,7 @@ def _refit_nb(wx, wy, wz, act, n):
     return nx, ny, nz, -(nx * mx + ny * my + nz * mz)
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
     """Least-squares refit on the inliers of (n, d) among the first na points, in one pass over the moments.
 
@@ -241,7 +245,7 @@ def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
     return cnt, rx, ry, rz, -(rx * (mx + ox) + ry * (my + oy) + rz * (mz + oz))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
     """RANSAC (thesis Alg. 5) over the first na points: 3-point hypotheses scored on ≤ subset random
     points (copied to sx, sy, sz), adaptive stop k = (1 + β·√(1 − w³)) / w³."""
@@ -288,7 +292,7 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz):
     return best >= 3, bx, by, bz, bd
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve_nb(A, b):
     """x with A·x = b for a small square A: LU with partial pivoting (LAPACK's dgetf2 + dgetrs, written out;
     np.linalg.solve's shape checks cost ~5 s of numba compiling on a fresh machine). A and b are overwritten."""
@@ -323,7 +327,7 @@ def _solve_nb(A, b):
     return b
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
     """True when the plane's inliers among the RANSAC subset bend: a quadratic in the in-plane coordinates
     explains more than r2_max of their residual variance and rises by more than bend_max·ε over them.
@@ -399,7 +403,7 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
                   per_window, extra_min, bend_max, min_width, tail_eps, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h, drop, state,
                   st, cand, wr, wc, wx, wy, wz,
@@ -635,7 +639,7 @@ def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps,
 
 # ---- FSPF (Biswas & Veloso; thesis Alg. 1) -----------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _fspf_nb(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size, eps, alpha, up, fwd, left,
              sl_min, sl_max, cam_h, ground_max_h, drop, state, st, out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt,
              stats):
