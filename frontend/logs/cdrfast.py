@@ -1,13 +1,14 @@
-"""Direct CDR decoding of the two high-rate small messages, sensor_msgs/Imu and nav_msgs/Odometry, into records,
-and direct CDR encoding of the scans kosmap writes most, sensor_msgs/LaserScan.
+"""Direct CDR decoding of the messages a log has most of (sensor_msgs/Imu, nav_msgs/Odometry, sensor_msgs/LaserScan and
+depth sensor_msgs/Image) into records, and direct CDR encoding of the scans kosmap writes most, sensor_msgs/LaserScan.
 
 rosbags' generated deserialisers build a message object per message (18–26 µs for these types here, plus
 ~20 µs to turn the object into a record): on a 10-minute log with a 200 Hz gyro, 50 Hz odometry and 100 Hz
-ground truth that is ~9 s of the reading process's CPU in `kosmap build` (docs/bench/pipeline.md). Both types are
-fixed layouts after the header's one string, so their fields are read straight from the bytes here, with the
-same checks rosbags makes (encapsulation, string length and terminator, message size). Anything else, or a
-message that fails a check, returns None and goes through rosbags as before (which then raises its own error).
-ROS 2 CDR only (a ROS 1 bag goes through rosbags).
+ground truth that is ~9 s of the reading process's CPU in `kosmap build` (docs/bench/pipeline.md); a 40 Hz laser
+and a 30 Hz depth camera took ~33 and ~39 µs a message more. These types are fixed layouts around their strings
+and arrays, so their fields are read straight from the bytes here, with the same checks rosbags makes
+(encapsulation, string length and terminator, array lengths, message size). Anything else, or a message that fails
+a check, returns None and goes through rosbags as before (which then raises its own error). ROS 2 CDR only (a ROS
+1 bag goes through rosbags).
 
 Writing, the build's Foxglove MCAP holds ~40k LaserScans per 10 minutes (four KOS levels, the laser, the fused
 scan): building a rosbags message and serialising it took 14 µs for a 512-beam scan, `laser_scan` writes the
@@ -22,7 +23,7 @@ import struct
 import numpy as np
 
 from frontend.logs import topics as T
-from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, quat_to_yaw
+from frontend.records import DepthFrame, Imu, ImuSamples, Odometry, OdometrySamples, Scan, quat_to_yaw
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: sec int32, nanosec uint32
 _U32 = struct.Struct("<I")
@@ -92,7 +93,66 @@ def odometry(raw, topic: str) -> Odometry | None:
     return Odometry(stamp, x, y, quat_to_yaw(qx, qy, qz, qw), frame, child, topic, z)
 
 
-DECODERS = {T.IMU: imu, T.ODOMETRY: odometry}
+_SCAN_IN = struct.Struct("<7fI")  # angle min, max, increment, time increment, scan time, range min, max; len(ranges)
+_IMAGE_SIZE = struct.Struct("<II")  # height, width
+_STEP = struct.Struct("<II")  # step, len(data) (after is_bigendian, 4-aligned)
+_DEPTH = {"16UC1": ("<u2", "16UC1"), "mono16": ("<u2", "16UC1"), "32FC1": ("<f4", "32FC1")}
+
+
+def scan(raw, topic: str) -> Scan | None:
+    """sensor_msgs/LaserScan as frontend.logs.convert.to_record makes it (its arrays copied out of the log's chunk),
+    or None."""
+    h = _header(raw)
+    if h is None:
+        return None
+    stamp, frame, pos = h
+    pos = (pos + 3) & ~3
+    if pos + _SCAN_IN.size > len(raw):
+        return None
+    a0, _, inc, t_inc, t_scan, r0, r1, n = _SCAN_IN.unpack_from(raw, pos)
+    pos += _SCAN_IN.size
+    if pos + 4 * n + 4 > len(raw):
+        return None
+    (m,) = _U32.unpack_from(raw, pos + 4 * n)
+    end = pos + 4 * n + 4 + 4 * m
+    if not end <= len(raw) < end + 4:
+        return None
+    ranges = np.frombuffer(raw, "<f4", n, pos).astype(np.float32)  # (a copy: the chunk is not kept alive)
+    return Scan(stamp, ranges, a0, inc, r0, r1, frame, topic, np.frombuffer(raw, "<f4", m, pos + 4 * n + 4).astype(np.float32),
+                t_inc, t_scan)
+
+
+def image(raw, topic: str) -> DepthFrame | None:
+    """A depth sensor_msgs/Image (16UC1, mono16 or 32FC1, little endian, rows without padding) as
+    frontend.logs.convert.to_record makes it, its pixels a view of `raw`; anything else (other encodings, padded
+    rows, damage: what image_array explains in its errors) None."""
+    h = _header(raw)
+    if h is None:
+        return None
+    stamp, frame, pos = h
+    pos = (pos + 3) & ~3
+    if pos + 8 > len(raw):
+        return None
+    rows, cols = _IMAGE_SIZE.unpack_from(raw, pos)
+    s = _string(raw, pos + 8)
+    if s is None or s[0] not in _DEPTH:
+        return None
+    dtype, enc = _DEPTH[s[0]]
+    pos = s[1]
+    big = raw[pos] if pos < len(raw) else 1
+    pos = (pos + 4) & ~3
+    if big or pos + 8 > len(raw):
+        return None
+    step, n = _STEP.unpack_from(raw, pos)
+    pos += 8
+    end = pos + n
+    if rows <= 0 or cols <= 0 or step != cols * (2 if dtype == "<u2" else 4) or n != step * rows \
+            or not end <= len(raw) < end + 4:
+        return None
+    return DepthFrame(stamp, np.frombuffer(raw, dtype, rows * cols, pos).reshape(rows, cols), enc, frame, topic)
+
+
+DECODERS = {T.IMU: imu, T.ODOMETRY: odometry, T.LASER_SCAN: scan, T.IMAGE: image}
 
 
 # ---- many messages of one topic at once (LogReader.read_batched) ----------------------------------------------------

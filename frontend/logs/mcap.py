@@ -53,6 +53,7 @@ class McapLog(LogReader):
             self.truncated = self._summary is None
             self._summary = None
         self._registered: set[tuple[int, str]] = set()
+        self._fast: dict[int, object] = {}  # per channel: its direct decoder, or None
         self._infos: dict[str, tuple[bytes, object]] = {}  # per topic: the last CameraInfo's bytes after its stamp, its record
         self._ahead: list = []  # the read-ahead threads of open reads: stopped before the file closes
 
@@ -66,6 +67,15 @@ class McapLog(LogReader):
 
     # -- decoding --------------------------------------------------------------------------------------------------
     def _decode(self, schema, channel, message):
+        fast = self._fast.get(channel.id, False)
+        if fast is False:  # the channel's direct decoder (frontend/logs/cdrfast.py), found once: its type's checks
+            # below would pass for it (a ROS 2 type rosbags knows, cdr)
+            fast = self._fast[channel.id] = _FAST.get(normalize_type(schema.name)) \
+                if schema is not None and channel.message_encoding == "cdr" else None
+        if fast is not None:
+            rec = fast(message.data, channel.topic)
+            if rec is not None:
+                return rec
         if schema is None:
             return None
         msgtype = normalize_type(schema.name)
@@ -92,11 +102,6 @@ class McapLog(LogReader):
             if last is not None and last[0] == info:
                 sec, nsec = struct.unpack_from("<iI", data, 4)
                 return dataclasses.replace(last[1], stamp_ns=sec * 1_000_000_000 + nsec)
-        fast = _FAST.get(msgtype) if enc == "cdr" else None
-        if fast is not None:  # Imu, Odometry: read straight from the bytes (frontend/logs/cdrfast.py)
-            rec = fast(data, channel.topic)
-            if rec is not None:
-                return rec
         # A depth image comes as a view into its chunk (_chunk_messages): rosbags slices the CDR header off, which
         # from bytes copied the image (~2 s per 10 minutes of a 30 Hz Kinect); a view's slice does not. Its arrays view it.
         try:

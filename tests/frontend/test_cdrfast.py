@@ -136,3 +136,54 @@ def test_laser_scan_bytes_are_rosbags_bytes():
     for a, b in zip(back, want):
         assert a.stamp_ns == b.stamp_ns and a.frame_id == b.frame_id and a.ranges.tobytes() == b.ranges.tobytes()
         assert a.intensities.tobytes() == b.intensities.tobytes() and a.angle_min == np.float32(b.angle_min)
+
+
+@pytest.mark.parametrize("frame", ["", "a", "ab", "abc", "laser", "laser_l", "base_scan", "kamera_ß"])
+def test_laser_scan_and_depth_image_equal_rosbags(frame):
+    """LaserScan and depth Image decoded from the bytes give the records rosbags + to_record give, for every
+    padding after the frame id and (Image) after the encoding; rosbags' own bytes in, so every field and length
+    is as a ROS driver writes it."""
+    from frontend.logs.cdrfast import image, scan
+    from frontend.logs.convert import image_msg, scan_msg
+    from frontend.records import DepthFrame, Scan
+
+    rng = np.random.default_rng(len(frame) + 11)
+    for n, m in ((0, 0), (1, 0), (541, 541), (1081, 0), (7, 7)):
+        ranges = rng.uniform(0.1, 30, n).astype(np.float32)
+        ranges[rng.random(n) < 0.1] = np.inf
+        s = Scan(int(rng.integers(0, 2**60)), ranges, float(rng.uniform(-3, 0)), float(rng.uniform(1e-3, 0.1)),
+                 0.1, 30.0, frame, "/scan", rng.random(m).astype(np.float32), 1e-5, 0.025)
+        raw = _cdr(scan_msg(typestore(2), s), T.LASER_SCAN)
+        got = scan(raw, "/scan")
+        _same(got, _reference(raw, T.LASER_SCAN, "/scan"))
+        assert got.ranges.base is None or got.ranges.base is not raw  # not a view into the log's chunk
+    for enc, dtype in (("16UC1", np.uint16), ("mono16", np.uint16), ("32FC1", np.float32)):
+        for h, w in ((1, 1), (3, 5), (42, 51)):
+            img = (rng.random((h, w)) * 5000).astype(dtype)
+            f = DepthFrame(int(rng.integers(0, 2**60)), img, "16UC1" if dtype == np.uint16 else "32FC1", frame, "/depth")
+            msg = image_msg(typestore(2), f)
+            msg.encoding = enc
+            raw = _cdr(msg, T.IMAGE)
+            got = image(raw, "/depth")
+            _same(got, _reference(raw, T.IMAGE, "/depth"))
+            assert got.encoding == ("32FC1" if enc == "32FC1" else "16UC1")
+
+
+def test_scans_and_images_it_cannot_vouch_for_go_to_rosbags():
+    from frontend.logs.cdrfast import image, scan
+    from frontend.logs.convert import image_msg, scan_msg
+    from frontend.records import DepthFrame, Scan
+
+    s = Scan(5, np.ones(10, np.float32), -1.0, 0.1, 0.1, 10.0, "laser", "/scan")
+    raw = _cdr(scan_msg(typestore(2), s), T.LASER_SCAN)
+    assert scan(raw, "/scan") is not None
+    assert scan(raw[:-4], "/scan") is None  # truncated
+    assert scan(raw + b"\0" * 8, "/scan") is None  # trailing bytes
+    ts = typestore(2)
+    msg = image_msg(ts, DepthFrame(5, np.ones((4, 6), np.uint16), "16UC1", "cam", "/depth"))
+    assert image(_cdr(msg, T.IMAGE), "/depth") is not None
+    for change in ({"encoding": "rgb8"}, {"is_bigendian": 1}, {"step": 14, "data": np.zeros(56, np.uint8)},
+                   {"height": 5}):
+        bad = ts.types[T.IMAGE](**{**{k: getattr(msg, k) for k in ("header", "height", "width", "encoding",
+                                                                    "is_bigendian", "step", "data")}, **change})
+        assert image(_cdr(bad, T.IMAGE), "/depth") is None, change
