@@ -264,8 +264,9 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                                 "F1 of seen walls"], rows))
             fr_ = c["free"]
             B.append(("p", (f"Alignment A→B: x {_f(al.get('x'), 3)} m, y {_f(al.get('y'), 3)} m, yaw "
-                            f"{_f(al.get('yaw_deg'), 2)}°, RMS {_f(al.get('rms'), 3)} m. " if al.get("aligned") else
-                            "Not aligned. ")
+                            f"{_f(al.get('yaw_deg'), 2)}°, RMS {_f(al.get('rms'), 3)} m"
+                            + (f" (the {_label(al['from'], m)} map's: made on the same poses, it shares their frame). "
+                               if al.get("from") else ". ") if al.get("aligned") else "Not aligned. ")
                       + f"Wall distance A→B mean {_f(c['distance_a_to_b']['mean'])} m (median "
                         f"{_f(c['distance_a_to_b']['median'])}), B→A mean {_f(c['distance_b_to_a']['mean'])} m. "
                       + f"Free space agreement {_f(fr_['agreement'])}, IoU {_f(fr_['iou'])}."))

@@ -109,6 +109,11 @@ def test_outputs_exist_and_parse(serial_run, logs):
                                       "kos_obstacle_at_laser_poses_vs_blueprint", "kos_obstacle_vs_laser"}
     for c in m2["comparisons"].values():
         assert set(c["tolerances"]) == {"0.05", "0.10", "0.20"}
+    # the maps on the laser's poses go through the laser map's alignment: the same frame, one transform
+    al = m2["comparisons"]["laser_vs_blueprint"]["alignment"]
+    for k in ("fused_vs_blueprint", "kos_obstacle_at_laser_poses_vs_blueprint"):
+        assert m2["comparisons"][k]["alignment"] == {**al, "from": "laser"}
+    assert "from" not in m2["comparisons"]["kos_obstacle_vs_blueprint"]["alignment"]
     lb = m2["comparisons"]["laser_vs_blueprint"]["tolerances"]["0.10"]
     assert lb["recall_observed"] > 0.85  # the laser finds the room's walls where it looks ...
     assert lb["precision"] > 0.75  # ... and sees furniture the plan lacks (table legs, shelves, a box)
@@ -228,16 +233,17 @@ def test_two_cameras_give_identical_steps_serial_and_parallel(tmp_path):
 
 def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     """The comparisons are submitted as their maps arrive (so the workers compare while the MCAP is written), once
-    each, and come back in the fixed order of the pairs whatever the order the maps finished in."""
+    each, and come back in the fixed order of the pairs whatever the order the maps finished in. The maps made on
+    the laser SLAM's poses (fused, KOS at the laser's poses) go with the laser map's job: its alignment is theirs."""
     from mapping.grid import OccupancyGrid
     from mapping.pipeline import _Compares, _Done
 
     submitted = []
 
     class Jobs:
-        def submit(self, fn, a, b, ccfg):
-            submitted.append((a.frame_id, b.frame_id))
-            return _Done(({"a": a.frame_id}, np.zeros((2, 2, 3), np.uint8), None))
+        def submit(self, fn, a, b, ccfg, more=()):
+            submitted.append((a.frame_id, b.frame_id, *(m.frame_id for m in more)))
+            return _Done([({"a": g.frame_id, "alignment": {}}, np.zeros((2, 2, 3), np.uint8), None) for g in (a, *more)])
 
     def grid(name):
         return OccupancyGrid(np.zeros((2, 2), np.int8), 0.05, frame_id=name)
@@ -247,13 +253,16 @@ def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     assert c.pairs == [("kos_obstacle", "blueprint"), ("laser", "blueprint"), ("fused", "blueprint"),
                        ("kos_obstacle", "laser")]
     c.grid_ready("laser", grid("laser"))
-    assert submitted == [("laser", "blueprint")]  # KOS vs laser waits for the KOS map
-    c.grid_ready("laser", grid("laser"))  # polled again: not submitted twice
+    assert submitted == []  # laser vs blueprint waits for the fused map, KOS vs laser for the KOS map
     c.grid_ready("kos_obstacle", grid("kos_obstacle"))
-    assert submitted == [("laser", "blueprint"), ("kos_obstacle", "blueprint"), ("kos_obstacle", "laser")]
+    assert submitted == [("kos_obstacle", "blueprint"), ("kos_obstacle", "laser")]
+    c.grid_ready("kos_obstacle", grid("kos_obstacle"))  # polled again: not submitted twice
     c.grid_ready("fused", grid("fused"))
+    assert submitted[2:] == [("laser", "blueprint", "fused")]
     files, warnings = {}, []
     comparisons, overlays = c.finish(tmp_path, files, warnings)
     assert list(comparisons) == ["kos_obstacle_vs_blueprint", "laser_vs_blueprint", "fused_vs_blueprint",
                                  "kos_obstacle_vs_laser"]
+    assert comparisons["fused_vs_blueprint"]["alignment"] == {"from": "laser"}
+    assert "from" not in comparisons["laser_vs_blueprint"]["alignment"]
     assert all(p.exists() for p in overlays.values()) and not warnings
