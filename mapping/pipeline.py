@@ -667,8 +667,8 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                         f.imu(rec)
                 elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
                     on_laser(rec)
-                if stream is not None and not batch and not isinstance(rec, (Odometry, Imu)):  # (the 200 + 150 Hz
-                    for step in stream.feed(rec):  # records: nothing for the depth stream, which only steps when it submits a frame)
+                if stream is not None and not batch and not isinstance(rec, (Odometry, Imu)):  # (the gyro and
+                    for step in stream.feed(rec):  # odometry: nothing for the depth stream, which steps when it submits a frame)
                         on_step(step)
                 for f in feeds:
                     f.advance(state["t"])
@@ -947,7 +947,7 @@ def _compare_job(a: OccupancyGrid, b: OccupancyGrid, ccfg, more: tuple = ()) -> 
     except CompareError as e:  # A does not align: nor does what shares its frame
         return [(None, None, str(e))] * (1 + len(more))
     out: list[tuple] = []
-    for k, grid in enumerate((a, *more)):
+    for grid in (a, *more):
         try:
             c = compare(grid, b, ccfg, alignment)
         except CompareError as e:
