@@ -92,6 +92,7 @@ def _write_log(path, rng, n: int = 400, bad_gyro: set[int] = frozenset(), switch
         if i % 8 == 0:
             recs.append(Scan(T0 + i * 5_000_000, rng.random(30).astype(np.float32), -1.0, 0.07, 0.1, 10.0, "laser",
                              "/scan"))
+    recs.sort(key=lambda r: r.stamp_ns)  # recorded in time: the chunks follow one another
     with McapWriter(path, chunk_size=chunk_size) as w:
         for r in recs:
             w.write(r)
@@ -157,3 +158,53 @@ def test_other_formats_read_as_read(tmp_path):
     assert len(a) == len(b) == 40
     for x, y in zip(a, b):
         _same(y, x)
+
+
+def _write_out_of_order(path, rng, late_s: float, chunk_size: int) -> None:
+    """IMU and odometry samples written in arrival order, every fifth one's log time late by up to `late_s`."""
+    recs = []
+    for i in range(300):
+        recs.append(_imu(rng, i))
+        if i % 3 == 0:
+            recs.append(_odom(rng, i // 3))
+    ts = typestore(2)
+    from frontend.logs import convert
+
+    with McapWriter(path, chunk_size=chunk_size) as w:
+        for k, r in enumerate(recs):
+            mt, msg = convert.record_msg(ts, r)
+            w.write_msg(r.topic, mt, msg, T0 + k * 3_000_000 + (int(rng.uniform(0, late_s) * 1e9) if k % 5 == 3 else 0))
+
+
+@pytest.mark.parametrize("late_s,chunk_size,batches", [(0.3, 4 << 20, True), (0.3, 4096, False), (0.0, 4096, True)])
+def test_samples_come_in_log_time_order_like_read(tmp_path, late_s, chunk_size, batches):
+    """Messages written out of log-time order: inside one chunk a batch is sorted by log time; chunks that overlap in
+    time (late messages written where they arrived) are read message by message. Either way each topic's samples come
+    in the order `read` gives them."""
+    path = tmp_path / "late.mcap"
+    _write_out_of_order(path, np.random.default_rng(7), late_s, chunk_size)
+    with open_log(path) as log:
+        plain = list(log.read())
+        batched = list(log.read_batched())
+    assert any(isinstance(r, (ImuSamples, OdometrySamples)) for r in batched) == batches
+    got = _expand(batched)
+    for topic in ("/imu", "/odom"):
+        a, b = [r for r in plain if r.topic == topic], [r for r in got if r.topic == topic]
+        assert len(a) == len(b) > 50
+        for x, y in zip(a, b):
+            _same(y, x)
+
+
+def test_chunks_in_sequence():
+    from types import SimpleNamespace as C
+
+    from frontend.logs.mcap import _chunks_in_sequence
+
+    def ci(a, b, off):
+        return C(message_start_time=a, message_end_time=b, chunk_start_offset=off)
+
+    assert _chunks_in_sequence([ci(0, 10, 0), ci(10, 20, 100), ci(25, 30, 200)])
+    assert _chunks_in_sequence([ci(25, 30, 200), ci(0, 10, 0)])  # the index's order does not matter
+    assert not _chunks_in_sequence([ci(0, 10, 0), ci(9, 20, 100)])
+    assert not _chunks_in_sequence([ci(0, 100, 0), ci(10, 20, 100), ci(30, 40, 200)])  # inside a long one
+    assert _chunks_in_sequence([])
