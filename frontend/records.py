@@ -207,19 +207,10 @@ class Odometry:
         return self.stamp_ns * 1e-9
 
 
-@dataclass(frozen=True)
-class OdometrySamples:
-    """Consecutive Odometry records of one topic as columns: what `LogReader.read_batched` hands for a stretch of a
-    50–100 Hz odometry stream (an MCAP chunk's worth), so that it costs a few numpy calls, not a record each."""
+class _Samples:
+    """What the column records (OdometrySamples, ImuSamples) share: samples with their stamps in log order."""
 
-    stamps_ns: np.ndarray  # (n,) int64, in the order of the log
-    x: np.ndarray  # (n,) float64
-    y: np.ndarray
-    yaw: np.ndarray
-    z: np.ndarray
-    frame_id: str = "odom"
-    child_frame_id: str = "base_link"
-    topic: str = ""
+    stamps_ns: np.ndarray  # (n,) int64
 
     def __len__(self) -> int:
         return len(self.stamps_ns)
@@ -234,6 +225,21 @@ class OdometrySamples:
         """The latest sample's stamp: the log has been read this far."""
         return int(self.stamps_ns.max())
 
+
+@dataclass(frozen=True)
+class OdometrySamples(_Samples):
+    """Consecutive Odometry records of one topic as columns: what `LogReader.read_batched` hands for a stretch of a
+    50–100 Hz odometry stream (an MCAP chunk's worth), so that it costs a few numpy calls, not a record each."""
+
+    stamps_ns: np.ndarray  # (n,) int64, in the order of the log
+    x: np.ndarray  # (n,) float64
+    y: np.ndarray
+    yaw: np.ndarray
+    z: np.ndarray
+    frame_id: str = "odom"
+    child_frame_id: str = "base_link"
+    topic: str = ""
+
     def records(self) -> list[Odometry]:
         """The samples as the Odometry records `read` gives."""
         return [Odometry(int(t), x, y, a, self.frame_id, self.child_frame_id, self.topic, z)
@@ -246,7 +252,7 @@ _IMU_FIELDS = (("angular_velocity", 3), ("linear_acceleration", 3), ("orientatio
 
 
 @dataclass(frozen=True)
-class ImuSamples:
+class ImuSamples(_Samples):
     """Consecutive Imu records of one topic as columns (n × the Imu's fields): a 200 Hz gyro's stretch of the log
     (`LogReader.read_batched`), a few numpy calls instead of a record each."""
 
@@ -259,17 +265,6 @@ class ImuSamples:
     linear_acceleration_cov: np.ndarray  # (n, 9)
     frame_id: str = ""
     topic: str = ""
-
-    def __len__(self) -> int:
-        return len(self.stamps_ns)
-
-    @property
-    def stamp_ns(self) -> int:
-        return int(self.stamps_ns[0])
-
-    @property
-    def end_ns(self) -> int:
-        return int(self.stamps_ns.max())
 
     @property
     def has_angular_velocity(self) -> np.ndarray:

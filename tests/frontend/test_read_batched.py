@@ -16,18 +16,9 @@ from frontend.logs.cdrfast import imu, imu_batch, odometry, odometry_batch
 from frontend.logs.convert import imu_msg, odometry_msg, typestore
 from frontend.logs.writer import McapWriter, open_writer
 from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan
+from tests.frontend.test_cdrfast import _same
 
 T0 = 1_700_000_000_000_000_000
-
-
-def _same(a, b) -> None:
-    assert type(a) is type(b)
-    for f in dataclasses.fields(a):
-        va, vb = getattr(a, f.name), getattr(b, f.name)
-        if isinstance(vb, np.ndarray):
-            assert va.dtype == vb.dtype and va.shape == vb.shape and va.tobytes() == vb.tobytes(), f.name
-        else:
-            assert type(va) is type(vb) and (va == vb or (va != va and vb != vb)), (f.name, va, vb)
 
 
 def _imu(rng, i: int, frame: str = "imu_link", topic: str = "/imu") -> Imu:
