@@ -222,7 +222,8 @@ class _Samples:
 
     @property
     def end_ns(self) -> int:
-        """The latest sample's stamp: the log has been read this far."""
+        """The latest sample's stamp (the batch reaches this far; the samples after its first may come ahead of
+        other topics' records, as a chunk holds them)."""
         return int(self.stamps_ns.max())
 
 

@@ -304,6 +304,13 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
+def _odometry_columns(rec: Odometry | OdometrySamples) -> tuple[np.ndarray, ...]:
+    """(stamps ns, x, y, yaw) of an OdometrySamples, or of one Odometry record as columns of one."""
+    if isinstance(rec, OdometrySamples):
+        return rec.stamps_ns, rec.x, rec.y, rec.yaw
+    return np.array([rec.stamp_ns], np.int64), np.array([rec.x]), np.array([rec.y]), np.array([rec.yaw])
+
+
 def _planar(tf: Transform | None) -> np.ndarray:
     if tf is None:
         return np.zeros(3)
@@ -493,7 +500,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     static_keys: set[tuple] = set()
     gt = array("d")  # t, x, y, yaw flattened
     stats = {k: array("f") for k in TABLE_5_2}
-    state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "laser_mount": None,
+    state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "end": None, "laser_mount": None,
              "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
              "stop": False, "partial": False}
     laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
@@ -628,33 +635,31 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                 if state["stop"]:
                     raise KeyboardInterrupt
                 batch = isinstance(rec, (OdometrySamples, ImuSamples))  # a stretch of samples (read_batched)
-                st = rec.end_ns if batch else rec.stamp_ns
+                # The log's "now" is where the record stands: a batch stands at its first sample, so the scans' odometry
+                # timeout runs as in `read` (at its last, a chunk longer than ODOM_WAIT_S released scans whose odometry
+                # was in the next chunk). Its last sample only extends how much log was read.
+                st = rec.stamp_ns
                 if st and (state["t"] is None or st > state["t"]):
                     state["t"] = st
                     if state["t0"] is None:
-                        state["t0"] = rec.stamp_ns
-                if batch:
+                        state["t0"] = st
+                if batch and (state["end"] is None or rec.end_ns > state["end"]):
+                    state["end"] = rec.end_ns
+                if isinstance(rec, (Odometry, OdometrySamples)):
+                    t, x, y, yaw = _odometry_columns(rec)
                     if rec.topic == det.ground_truth:
-                        gt.extend(np.column_stack((rec.stamps_ns * 1e-9, rec.x, rec.y, rec.yaw)).ravel().tolist())
-                        continue
-                    if isinstance(rec, OdometrySamples) and rec.topic == det.odom:
-                        if state["base"] == "base_link" and rec.child_frame_id:
-                            state["base"] = rec.child_frame_id.lstrip("/") or "base_link"
-                        for f in feeds:
-                            f.wheel_samples(rec.stamps_ns, rec.x, rec.y, rec.yaw)
-                    elif isinstance(rec, ImuSamples) and det.imu and rec.topic == det.imu:
-                        ok = rec.has_angular_velocity  # (Slam.add_imu skips a sample without)
-                        for f in feeds:
-                            f.gyro_samples(rec.stamps_ns[ok], rec.yaw_rate[ok])
-                elif isinstance(rec, Odometry):
-                    if rec.topic == det.ground_truth:
-                        gt.extend((rec.stamp_ns * 1e-9, rec.x, rec.y, rec.yaw))
+                        gt.extend(np.column_stack((t * 1e-9, x, y, yaw)).ravel().tolist())
                         continue
                     if rec.topic == det.odom:
                         if state["base"] == "base_link" and rec.child_frame_id:
                             state["base"] = rec.child_frame_id.lstrip("/") or "base_link"
                         for f in feeds:
-                            f.odom(rec)
+                            f.wheel_samples(t, x, y, yaw)
+                elif isinstance(rec, ImuSamples):
+                    if det.imu and rec.topic == det.imu:
+                        ok = rec.has_angular_velocity  # (Slam.add_imu skips a sample without)
+                        for f in feeds:
+                            f.gyro_samples(rec.stamps_ns[ok], rec.yaw_rate[ok])
                 elif isinstance(rec, Transforms) and rec.static:
                     key = tuple((t.parent, t.child, *np.asarray(t.translation, float).tolist(),
                                  *np.asarray(t.rotation, float).tolist()) for t in rec.transforms)
@@ -693,7 +698,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     os.replace(csv_path, out / "stats.csv")
     warnings.extend(run.warnings)
     g = np.asarray(gt, np.float64).reshape(-1, 4)
-    t0, t = state["t0"], state["t"]
+    t0, t = state["t0"], max((x for x in (state["t"], state["end"]) if x is not None), default=None)
     return {"spill": spill, "frames": state["frames"], "laser_kept": state["laser_kept"],
             "laser_seen": state["laser_seen"], "partial": state["partial"],
             "seconds": time.perf_counter() - t_begin, "cpu_s": time.process_time() - cpu0,
@@ -1009,9 +1014,12 @@ class _Compares:
 
         results = {}
         for pair, fut in self.futures.items():
-            for k, (name, res) in enumerate(zip((pair[0], *self.joined.get(pair, ())), fut.result())):
+            got = fut.result()
+            for k, (name, res) in enumerate(zip((pair[0], *self.joined.get(pair, ())), got)):
                 if k and res[0] is not None:
                     res[0]["alignment"]["from"] = pair[0]  # the map whose alignment it shares
+                elif k and got[0][0] is None:  # (its error is the first map's: say whose)
+                    res = (None, None, f"the {pair[0]} map, whose alignment it shares, did not align: {res[2]}")
                 results[(name, pair[1])] = res
         comparisons, overlays = {}, {}
         for a, b in self.pairs:

@@ -41,7 +41,10 @@ def _string(raw, pos: int) -> tuple[str, int] | None:
     end = pos + 4 + n
     if n < 1 or end > len(raw) or raw[end - 1] != 0:
         return None
-    return bytes(raw[pos + 4:end - 1]).decode(), end
+    try:
+        return bytes(raw[pos + 4:end - 1]).decode(), end
+    except UnicodeDecodeError:  # rosbags says what is wrong (and the reader warns and skips the message)
+        return None
 
 
 def _header(raw) -> tuple[int, str, int] | None:

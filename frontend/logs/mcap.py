@@ -141,11 +141,14 @@ class McapLog(LogReader):
             sch = self._summary.schemas
             batched = frozenset(cid for cid, ch in self._summary.channels.items() if ch.message_encoding == "cdr"
                                 and ch.schema_id in sch and normalize_type(sch[ch.schema_id].name) in _FAST_BATCH)
+            topics_of = [self._summary.channels[c].topic for c in batched]
+            if len(set(topics_of)) < len(topics_of):  # one topic on two channels: their batches would not interleave
+                batched = frozenset()
         # Chunks are read and decompressed on a thread (frontend/logs/readahead.py): ≤ 2 queued batches of ~0.5 MB of
         # messages beside mcap's current chunk. The thread seeks, so each read has its own file handle. Not
         # log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory).
         fh = open(self.path, "rb")
-        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched), size=lambda m: len(m[2].data),
+        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched), size=lambda m: m[2].nbytes if isinstance(m[2], _Batch) else len(m[2].data),
                            batch=512 << 10, depth=2)
         self._ahead.append(ahead)
         try:
@@ -214,13 +217,13 @@ class McapLog(LogReader):
 
 
 class _Batch:
-    """A chunk's messages on one channel (`_in_log_time_order` with `batched`): their log times and bytes."""
+    """A chunk's messages on one channel (`_in_log_time_order` with `batched`), in log-time order."""
 
-    __slots__ = ("messages", "data")
+    __slots__ = ("messages", "nbytes")
 
-    def __init__(self) -> None:
-        self.messages: list[Message] = []
-        self.data = b""  # (read-ahead sizes items by their data)
+    def __init__(self, messages: list[Message]) -> None:
+        self.messages = messages
+        self.nbytes = sum(len(m.data) for m in messages)  # (what read-ahead counts against its budget)
 
 
 def _chunks_in_sequence(chunk_indexes) -> bool:
@@ -259,17 +262,15 @@ def _in_log_time_order(fh, summary, topics, batched: frozenset = frozenset()) ->
             yield item
             continue
         fh.seek(offset, io.SEEK_SET)
-        batches: dict[int, tuple[int, _Batch]] = {}
+        batches: dict[int, list[tuple[int, int, Message]]] = {}
         for i, rec in _chunk_messages(fh.read(item.chunk_length), summary.channels, take, unzstd):
             if rec.channel_id in batched:
-                if rec.channel_id not in batches:
-                    batches[rec.channel_id] = (i, _Batch())
-                batches[rec.channel_id][1].messages.append(rec)
+                batches.setdefault(rec.channel_id, []).append((rec.log_time, i, rec))
                 continue
             heapq.heappush(heap, (rec.log_time, offset, i, (*take[rec.channel_id], rec)))
-        for cid, (i, b) in batches.items():
-            b.messages.sort(key=lambda m: m.log_time)  # (stable: ties in chunk order, as the heap breaks them)
-            heapq.heappush(heap, (b.messages[0].log_time, offset, i, (*take[cid], b)))
+        for cid, msgs in batches.items():
+            msgs.sort(key=lambda m: m[:2])  # log time, then position in the chunk: the order the heap gives
+            heapq.heappush(heap, (msgs[0][0], offset, msgs[0][1], (*take[cid], _Batch([m for _, _, m in msgs]))))
 
 
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, message start / end time, uncompressed size, crc, len(compression)

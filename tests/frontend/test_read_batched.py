@@ -9,11 +9,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from mcap.writer import Writer
 
 from frontend.logs import open_log
 from frontend.logs import topics as T
 from frontend.logs.cdrfast import imu, imu_batch, odometry, odometry_batch
-from frontend.logs.convert import imu_msg, odometry_msg, typestore
+from frontend.logs.convert import imu_msg, odometry_msg, scan_msg, typestore
 from frontend.logs.writer import McapWriter, open_writer
 from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan
 from tests.frontend.test_cdrfast import _same
@@ -199,3 +200,51 @@ def test_chunks_in_sequence():
     assert not _chunks_in_sequence([ci(0, 10, 0), ci(9, 20, 100)])
     assert not _chunks_in_sequence([ci(0, 100, 0), ci(10, 20, 100), ci(30, 40, 200)])  # inside a long one
     assert _chunks_in_sequence([])
+
+
+def test_one_topic_on_two_channels_is_read_record_by_record(tmp_path):
+    """A topic recorded on two channels (two publishers, or QoS changed mid-run): batches per channel would not
+    interleave, so such a log is read message by message, in `read`'s order."""
+    ts = typestore(2)
+    text, _ = ts.generate_msgdef(T.IMU, ros_version=2)
+    path = tmp_path / "two.mcap"
+    rng = np.random.default_rng(8)
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2")
+        sid = w.register_schema(T.IMU, "ros2msg", text.encode())
+        chans = [w.register_channel("/imu", "cdr", sid), w.register_channel("/imu", "cdr", sid, metadata={"q": "2"})]
+        for i in range(20):
+            r = _imu(rng, i)
+            w.add_message(chans[i % 2], log_time=r.stamp_ns, data=bytes(ts.serialize_cdr(imu_msg(ts, r), T.IMU)),
+                          publish_time=r.stamp_ns)
+        w.finish()
+    with open_log(path) as log:
+        plain, batched = list(log.read()), list(log.read_batched())
+    assert not any(isinstance(r, ImuSamples) for r in batched)
+    assert [r.stamp_ns for r in batched] == [r.stamp_ns for r in plain] == sorted(r.stamp_ns for r in plain)
+
+
+def test_a_frame_id_that_is_not_utf8_is_left_to_rosbags(tmp_path):
+    """Bytes that are not UTF-8 in a frame id: the direct decoders decline, and the reader warns and skips the message
+    as it does for anything rosbags cannot decode (it ended the read with a UnicodeDecodeError)."""
+    from frontend.logs.cdrfast import scan
+
+    s = Scan(T0, np.ones(10, np.float32), -1.0, 0.1, 0.1, 10.0, "laser", "/scan")
+    ts = typestore(2)
+    raw = bytearray(ts.serialize_cdr(scan_msg(ts, s), T.LASER_SCAN))
+    raw[16] = 0xFF  # the frame id's first byte
+    assert scan(bytes(raw), "/scan") is None
+    text, _ = ts.generate_msgdef(T.LASER_SCAN, ros_version=2)
+    path = tmp_path / "utf.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        w.start(profile="ros2")
+        cid = w.register_channel("/scan", "cdr", w.register_schema(T.LASER_SCAN, "ros2msg", text.encode()))
+        good = bytes(ts.serialize_cdr(scan_msg(ts, s), T.LASER_SCAN))
+        for k, data in enumerate((good, bytes(raw), good)):
+            w.add_message(cid, log_time=T0 + k, data=data, publish_time=T0 + k)
+        w.finish()
+    with open_log(path) as log:
+        got = list(log.read_batched())
+        assert len(got) == 2 and len(log.warnings) == 1 and "does not decode" in log.warnings[0]

@@ -266,3 +266,44 @@ def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     assert comparisons["fused_vs_blueprint"]["alignment"] == {"from": "laser"}
     assert "from" not in comparisons["laser_vs_blueprint"]["alignment"]
     assert all(p.exists() for p in overlays.values()) and not warnings
+
+    # the laser map does not align: the map on its poses says so, not "map A"
+    class Failing(Jobs):
+        def submit(self, fn, a, b, ccfg, more=()):
+            return _Done([(None, None, "map A has fewer than 3 wall cells: nothing to align")] * (1 + len(more)))
+
+    c = _Compares(grid("blueprint"), load_config(None, []), Failing())
+    c.expect(["laser", "fused"])
+    for name in ("laser", "fused"):
+        c.grid_ready(name, grid(name))
+    failed: list[str] = []
+    assert c.finish(tmp_path, {}, failed) == ({}, {})
+    assert failed == ["laser_vs_blueprint: map A has fewer than 3 wall cells: nothing to align",
+                      "fused_vs_blueprint: the laser map, whose alignment it shares, did not align: map A has fewer "
+                      "than 3 wall cells: nothing to align"]
+
+
+@pytest.mark.slow
+def test_chunks_longer_than_the_odometry_wait_give_reads_inputs(logs, tmp_path, monkeypatch):
+    """The build reads the gyro and odometry a chunk at a time (read_batched). With chunks longer than ODOM_WAIT_S
+    (1.25 s here; a 5 Hz Kinect log's 4 MB chunks hold ~1.8 s) the log's "now" must still stand where `read` has it,
+    or scans near a chunk's end time out before their odometry (in the next chunk) is read: the same trajectories as
+    a build reading record by record, serial and parallel."""
+    from frontend.logs.mcap import McapLog
+
+    size = sum(c.uncompressed_size for c in McapLog(logs["full"])._summary.chunk_indexes)
+    long = tmp_path / "long.mcap"
+    with open_log(logs["full"]) as log, McapWriter(long, chunk_size=size // 2) as w:
+        for rec in log.read(log.info().types()):
+            w.write(rec, rec.topic)
+    spans = [(c.message_end_time - c.message_start_time) * 1e-9 for c in McapLog(long)._summary.chunk_indexes]
+    assert len(spans) == 2 and min(spans) > 1.0
+
+    def trajectories(out):
+        return {n: (out / f"trajectory_{n}.tum").read_bytes() for n in ("kos", "laser")}
+
+    batched = trajectories(build(long, tmp_path / "b0", load_config(None, SETS), workers=0).out)
+    parallel = trajectories(build(long, tmp_path / "b2", load_config(None, SETS), workers=2).out)
+    monkeypatch.setattr(McapLog, "read_batched", McapLog.read)
+    by_record = trajectories(build(long, tmp_path / "r0", load_config(None, SETS), workers=0).out)
+    assert batched == by_record == parallel
