@@ -672,8 +672,9 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                         f.imu(rec)
                 elif isinstance(rec, Scan) and rec.topic == det.scan and laser_feed is not None:
                     on_laser(rec)
-                if stream is not None and not batch and not isinstance(rec, (Odometry, Imu)):  # (the gyro and
-                    for step in stream.feed(rec):  # odometry: nothing for the depth stream, which steps when it submits a frame)
+                # (the gyro and odometry: nothing for the depth stream, which steps when it submits a frame)
+                if stream is not None and not batch and not isinstance(rec, (Odometry, Imu)):
+                    for step in stream.feed(rec):
                         on_step(step)
                 for f in feeds:
                     f.advance(state["t"])

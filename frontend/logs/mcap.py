@@ -148,8 +148,8 @@ class McapLog(LogReader):
         # messages beside mcap's current chunk. The thread seeks, so each read has its own file handle. Not
         # log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory).
         fh = open(self.path, "rb")
-        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched), size=lambda m: m[2].nbytes if isinstance(m[2], _Batch) else len(m[2].data),
-                           batch=512 << 10, depth=2)
+        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched), size=_nbytes, batch=512 << 10,
+                           depth=2)
         self._ahead.append(ahead)
         try:
             yield from ahead
@@ -191,7 +191,8 @@ class McapLog(LogReader):
 
     def read_batched(self, topics: Iterable[str] | None = None) -> Iterator:
         """`read`, with each chunk's Imu and Odometry messages of a topic as one ImuSamples / OdometrySamples, in
-        the place of the first of them (an indexed MCAP; a chunk holds ~0.1–1 s of a log)."""
+        the place of the first of them (an indexed MCAP whose chunks follow one another in time; a chunk holds a
+        fraction of a second to a few seconds of a log)."""
         wanted = None if topics is None else list(topics)
         for schema, channel, message in self._messages(wanted, batch=True):
             if isinstance(message, _Batch):
@@ -224,6 +225,12 @@ class _Batch:
     def __init__(self, messages: list[Message]) -> None:
         self.messages = messages
         self.nbytes = sum(len(m.data) for m in messages)  # (what read-ahead counts against its budget)
+
+
+def _nbytes(item: tuple) -> int:
+    """Bytes of a (schema, channel, message or _Batch) item: what read-ahead counts against its budget."""
+    m = item[2]
+    return m.nbytes if isinstance(m, _Batch) else len(m.data)
 
 
 def _chunks_in_sequence(chunk_indexes) -> bool:
