@@ -82,10 +82,10 @@ class LogReader(ABC):
             bad = imu_samples_problems(rec)
             if bad is None:
                 return rec
-            for i in np.flatnonzero(bad != "")[:1]:  # the first one's warning, as `read` gives it
-                self._bad_sample(rec.topic, str(bad[i]), int(rec.stamps_ns[i]))
-            self._bad_imu[rec.topic] += int((bad != "").sum()) - 1
             ok = bad == ""
+            i = int(np.flatnonzero(~ok)[0])  # the first one's warning, as `read` gives it
+            self._bad_sample(rec.topic, str(bad[i]), int(rec.stamps_ns[i]))
+            self._bad_imu[rec.topic] += int((~ok).sum()) - 1
             return rec.select(ok) if ok.any() else None
         if isinstance(rec, Imu):
             why = imu_problem(rec)
