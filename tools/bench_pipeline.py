@@ -16,6 +16,9 @@ factor the build would reach with both cores to itself ("CPU bound").
 
     --minutes 10 --configs default --merge   # one more run, merged into the existing results
     --against d984252 --pairs 2              # also the same logs built by that commit's code, alternating with this tree's
+    --repeat 3                               # each parallel build three times: the median, and the range beside it
+
+Ratios to the previous pipeline.json are given only when it was measured on the same kind of processor.
 """
 
 from __future__ import annotations
@@ -173,6 +176,18 @@ def run(log: Path, bp: Path, workers: int, sets: list[str], code: Path = REPO) -
     return json.loads(p.stdout.strip().splitlines()[-1])
 
 
+def repeated(log: Path, bp: Path, workers: int, sets: list[str], n: int) -> dict:
+    """`n` builds of the same log and config one after another: the one with the median real-time factor, carrying
+    every build's real-time factor, wall and CPU seconds (one build says little on a machine whose speed drifts)."""
+    rs = [run(log, bp, workers, sets) for _ in range(max(1, n))]
+    rs.sort(key=lambda r: r["metrics"]["timing"]["realtime_factor"])
+    r = rs[len(rs) // 2]
+    if len(rs) > 1:
+        r["repeats"] = {"realtime_factor": [x["metrics"]["timing"]["realtime_factor"] for x in rs],
+                        "wall_s": [x["wall_s"] for x in rs], "cpu_per_log_s": [cpu_per_log_s(x) for x in rs]}
+    return r
+
+
 def worktree(rev: str) -> Path:
     """A git worktree of `rev` under the bench cache (made once): the baseline code of --against."""
     sha = subprocess.run(["git", "rev-parse", "--short", rev], capture_output=True, text=True, cwd=REPO, check=True).stdout.strip()
@@ -287,6 +302,8 @@ def main() -> None:
     ap.add_argument("--against", metavar="REV",
                     help="also build each log with REV's code (a git worktree), alternating with this tree's")
     ap.add_argument("--pairs", type=int, default=2, help="--against: alternating pairs per log (after one warm-up each)")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="build each parallel config this many times: its row is the median build, with the range")
     ap.add_argument("--rewrite", action="store_true", help="rewrite pipeline.md from pipeline.json")
     ap.add_argument("--account", action="store_true",
                     help="profile one serial build of the 1-minute log per config (--configs), into pipeline.json")
@@ -327,6 +344,10 @@ def main() -> None:
                                 cwd=REPO).stdout.strip() + (" (+ local changes)" if _dirty() else "")
     previous = {_key(r): r for r in old.get("runs", [])}  # the last results, for the ratios
     previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
+    other_cpu = old.get("machine", {}).get("cpu")
+    if other_cpu != cpu_model():  # another kind of machine: its times are no baseline for this one's
+        print(f"the previous results were measured on another machine ({other_cpu}): no ratios to them", flush=True)
+        previous = {}
     base = worktree(a.against) if a.against else None
     comparisons = []
     for minutes in a.minutes:
@@ -345,7 +366,7 @@ def main() -> None:
         if minutes == min(a.minutes) and not a.no_serial:
             runs.insert(1, (0, []))
         for w, sets in runs:
-            r = run(log, bp, w, sets)
+            r = repeated(log, bp, w, sets, a.repeat if w > 0 else 1)
             r.update({"minutes": minutes, "workers": w, "sets": sets, "log_gb": log.stat().st_size / 1e9,
                       "commit": old_commit})
             r["breakdown_cpu_per_log_s"] = breakdown(r)
@@ -413,9 +434,10 @@ def markdown(doc: dict) -> str:
          f"code at {doc.get('commit', '?')}" + _older_rows(doc) + ".",
          "", "The machine is shared: the load average (1 min, before and after each build) says how much else ran in "
          "it, the steal (the share of the machine's time its host gave to other guests during the build) how much ran "
-         "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: the "
-         "same code on the 10-minute log took 0.175 to 0.26 CPU s per second of log in three builds within 25 minutes "
-         "(6.4× to 9.9× real time), as the host's load changed what a CPU second does. 'CPU bound' is 2 cores "
+         "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: on "
+         "an AMD EPYC host (AVX2) the same code (3bb2c50) on the 10-minute log took 0.175 to 0.26 CPU s per second of "
+         "log in three builds within 25 minutes (6.4× to 9.9× real time), as the host's load changed what a CPU "
+         "second does; hence `--repeat`, several builds of a config with the median in the table and the range. 'CPU bound' is 2 cores "
          "divided by the build's CPU seconds (main, workers and SLAM processes) per second of log.", "",
          "| log | workers | config | depth frames | wall (s) | real-time factor | previous | ratio | CPU s per log s "
          "(previous) | CPU bound on 2 cores | load avg (steal) | peak RSS main (MB) | peak RSS worker (MB) |",
@@ -431,9 +453,11 @@ def markdown(doc: dict) -> str:
         prev_cpu = f" ({(pv['cpu_main_s'] + pv['cpu_workers_s']) / t['log_s']:.3f})" if pv else ""
         load = r.get("load_avg_1min")
         steal = f" ({r['steal_pct']:.0f} %)" if r.get("steal_pct") is not None else ""
+        rep = (r.get("repeats") or {}).get("realtime_factor")
+        spread = f" (median of {len(rep)}: {min(rep):.2f}–{max(rep):.2f}×)" if rep else ""
         L.append(f"| {r['minutes']:g} min ({t['log_s']:.0f} s, {r['log_gb']:.1f} GB) | {r['workers']} | "
                  f"{' '.join(r['sets']) or 'default'} | {fr} | "
-                 f"{r['wall_s']:.0f} | {t['realtime_factor']:.2f}× | {prev_rt} | {ratio} | {cpu:.3f}{prev_cpu} | "
+                 f"{r['wall_s']:.0f} | {t['realtime_factor']:.2f}×{spread} | {prev_rt} | {ratio} | {cpu:.3f}{prev_cpu} | "
                  f"{2.0 / cpu:.1f}× | {f'{load[0]:.1f}–{load[1]:.1f}' if load else '–'}{steal} | "
                  f"{r['maxrss_main_mb']:.0f} | {r['maxrss_worker_mb']:.0f} |")
         if r["workers"] == 0:

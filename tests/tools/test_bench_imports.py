@@ -29,3 +29,20 @@ def test_pipeline_bench_reads_the_hosts_steal():
     a = _cpu_times()
     if Path("/proc/stat").is_file():
         assert len(a) == 8 and all(x >= 0 for x in a)
+
+
+def test_pipeline_bench_repeat_keeps_the_median_build_and_the_range(monkeypatch):
+    import tools.bench_pipeline as bp
+
+    rtfs = iter([9.0, 12.5, 10.0])
+
+    def fake_run(log, blueprint, workers, sets):
+        f = next(rtfs)
+        return {"wall_s": 600.0 / f, "cpu_main_s": 10.0, "cpu_workers_s": 50.0,
+                "metrics": {"timing": {"realtime_factor": f, "log_s": 600.0}}}
+
+    monkeypatch.setattr(bp, "run", fake_run)
+    r = bp.repeated(Path("log.mcap"), Path("bp.yaml"), 2, [], 3)
+    assert r["metrics"]["timing"]["realtime_factor"] == 10.0
+    assert r["repeats"]["realtime_factor"] == [9.0, 10.0, 12.5]
+    assert r["repeats"]["cpu_per_log_s"] == pytest.approx([0.1] * 3)
