@@ -265,7 +265,9 @@ def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit:
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     from frontend.logs.writer import McapWriter
+    from mapping.outdir import check_out
 
+    out = check_out(out)
     with open_log(log_path) as log:  # refuse a log without depth before writing anything
         if not detect_topics(log.info().types(), cfg.topics).depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")

@@ -49,6 +49,7 @@ from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, 
 from mapping.grid import GridBuilder, OccupancyGrid
 from mapping.jsonsafe import json_safe
 from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
+from mapping.outdir import SPILL_PREFIX, check_out, claim, discard, record
 from mapping.slamproc import RemoteFeed, SlamProcessError
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
@@ -60,6 +61,7 @@ PLANES_TOPIC = "/kosmap/planes/points"
 OUTPUTS = ("metrics.json", "report.html", "report.md", "map_*.png", "map_*.pgm", "map_*.yaml", "overlay_*.png",
            "trajectory_*.tum", "ground_truth.tum", "odometry.tum", "stats.csv", "kosmap.mcap", "summary.png",
            "frames.png", "trajectories.png")  # what a build writes into its folder (removed first when present)
+BUILD_FILES = OUTPUTS + ("config.toml",)  # and its effective config: mapping/outdir.py tells ours from the user's
 
 
 # ---- SLAM feeding ---------------------------------------------------------------------------------------------------
@@ -341,8 +343,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     if workers < 0:
         raise KosmapError(f"--workers {workers} must be 0 (serial, in this process) or more")
     bcfg = cfg.build
-    if out.exists() and not out.is_dir():
-        raise KosmapError(f"--out {out} is a file; give a folder for the maps and the report")
+    check_out(out)
     bp_grid = None
     if blueprint is not None:
         from mapping.mapio import read_blueprint
@@ -368,16 +369,14 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
 
     kos_gcfg = kos_graph_config(cfg)  # the same graph as `kosmap slam --source kos` (KOS_GRAPH, then [build] kos_graph)
 
-    out.mkdir(parents=True, exist_ok=True)
-    for pattern in OUTPUTS:  # a previous run's outputs must not mix with this run's (nor survive its failure)
-        for stale in out.glob(pattern):
-            stale.unlink(missing_ok=True)
-    files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
-    spill_dir = Path(tempfile.mkdtemp(prefix=".kosmap-spill-", dir=out))
+    claim(out, BUILD_FILES)  # the previous build's files go; a file of the user's under one of our names stops here
+    spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
     warnings: list[str] = []
     pool = None
     feeds: dict[str, SlamFeed | RemoteFeed] = {}
+    done = False
     try:
+        files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
         # One set of worker processes for the whole build, forked now while this process is small: the frames in
         # pass 1, then the grid and comparison jobs. Workers forked after pass 1 counted every page of this process
         # (by then holding SLAM's state) as their own resident memory: 167 → 259 MB from a 1- to a 10-minute log.
@@ -461,13 +460,15 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
 
             t_rep = time.perf_counter()
             files.update(write_report(out, metrics, frames_png, traj_png))
+            # total_s and the real-time factor stay what the report shows (and the console prints): up to the report
             metrics["timing"]["report_s"] = time.perf_counter() - t_rep
-            metrics["timing"]["total_s"] = time.perf_counter() - t_start
-            metrics["timing"]["realtime_factor"] = (p1["log_s"] / metrics["timing"]["total_s"]
-                                                    if metrics["timing"]["total_s"] > 0 else None)
             files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
+        files["manifest"] = record(out, BUILD_FILES)
+        done = True
         return BuildResult(out, json_safe(metrics), files)
     finally:
+        if not done:  # failed, or stopped by a second Ctrl-C or SIGTERM: no half-written result left looking valid
+            discard(out, BUILD_FILES)
         for feed in feeds.values():
             feed.close()
         if pool is not None:

@@ -6,7 +6,9 @@ Each module in tools/commands/ adds its command(s) through `register(app)`, so c
 from __future__ import annotations
 
 import importlib
+import os
 import pkgutil
+import signal
 import sys
 
 import typer
@@ -21,8 +23,22 @@ for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name)
     importlib.import_module(f"tools.commands.{mod.name}").register(app)
 
 
+def _terminated(main_pid: int):
+    """SIGTERM (`kill`, a supervisor) stops a run like an error: its `finally` blocks remove what it half wrote
+    (without this, Python dies at once and leaves a build's temporary folder behind). A forked worker dies at once."""
+    def handler(signum, _frame):
+        if os.getpid() != main_pid:
+            signal.signal(signum, signal.SIG_DFL)
+            os.kill(os.getpid(), signum)
+            return
+        print("kosmap: terminated", file=sys.stderr)
+        raise SystemExit(128 + signum)
+    return handler
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the console script: usage errors are click's; our errors are one line, exit 2."""
+    old = signal.signal(signal.SIGTERM, _terminated(os.getpid()))
     try:
         app(args=argv, prog_name="kosmap")  # standalone: click prints usage errors and exits
     except SystemExit as e:
@@ -33,6 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("kosmap: interrupted", file=sys.stderr)
         return 130
+    finally:
+        signal.signal(signal.SIGTERM, old)
     return 0
 
 

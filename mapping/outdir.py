@@ -1,0 +1,99 @@
+"""Output folders: checked before any work, and a build's own files told apart from the user's.
+
+A build replaces the files of the previous build in its folder, and only those: each build lists what it wrote in
+a manifest (MANIFEST); a file that a build would write under the same name but that no build wrote there is the
+user's, and the build refuses to start rather than delete or overwrite it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from pathlib import Path
+
+from frontend.errors import KosmapError
+
+MANIFEST = ".kosmap-outputs"
+SPILL_PREFIX = ".kosmap-spill-"  # a build's temporary folder inside its output folder (removed when it ends)
+
+
+class OutputError(KosmapError):
+    """The output folder cannot be written, or holds files of the user's that the run would replace."""
+
+
+def check_out(out: str | Path, option: str = "--out") -> Path:
+    """Fail before any work when `out` cannot become a folder this process writes into: empty, a file, under a file,
+    or in a folder without write permission. Returns it as a Path."""
+    if not str(out).strip():
+        raise OutputError(f"{option} is empty; give a folder for the results")
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{option} {out} is a file; give a folder for the results")
+    p = out.absolute()
+    while not p.exists():
+        p = p.parent
+    if not p.is_dir():
+        raise OutputError(f"{option} {out}: {p} is a file, so no folder can be made in it; give another folder")
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise OutputError(f"{option} {out}: no permission to write in {p}; give a folder you can write to")
+    return out
+
+
+def previous_outputs(out: Path) -> set[str] | None:
+    """Names of the files the previous build wrote in `out` (its manifest); for a folder of a build from before
+    manifests (metrics.json says "kosmap": "build") every file matching `patterns` counts; None: no build's folder."""
+    try:
+        return set(json.loads((out / MANIFEST).read_text())["files"])
+    except FileNotFoundError:
+        pass
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # a damaged manifest proves nothing: what it would list is treated as the user's
+    try:
+        legacy = json.loads((out / "metrics.json").read_text()).get("kosmap") == "build"
+    except (OSError, ValueError, AttributeError):
+        legacy = False
+    return {"*"} if legacy else None
+
+
+def claim(out: Path, patterns: tuple[str, ...]) -> None:
+    """Make `out` ready for a build that writes files matching `patterns`: the previous build's files there are
+    removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed build
+    (its temporary folder, `.partial` files); a matching file no build wrote stops the run, untouched."""
+    out.mkdir(parents=True, exist_ok=True)
+    prev = previous_outputs(out)
+    present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
+    ours = set(present) if prev == {"*"} else (prev or set())
+    theirs = [n for n in present if n not in ours]
+    if theirs:
+        more = f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
+        raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which this build would overwrite but no "
+                          f"kosmap build wrote; move them or give another folder")
+    for name in present:
+        (out / name).unlink(missing_ok=True)
+    (out / MANIFEST).unlink(missing_ok=True)
+    for p in out.glob(SPILL_PREFIX + "*"):
+        shutil.rmtree(p, ignore_errors=True)
+    for pat in patterns:
+        for p in out.glob(pat + ".partial"):
+            p.unlink(missing_ok=True)
+
+
+def discard(out: Path, patterns: tuple[str, ...]) -> None:
+    """Remove what a failed build wrote (after `claim`, every file matching `patterns` is this run's): no
+    half-written result is left looking valid."""
+    for pat in patterns:
+        for p in out.glob(pat):
+            p.unlink(missing_ok=True)
+        for p in out.glob(pat + ".partial"):
+            p.unlink(missing_ok=True)
+    (out / MANIFEST).unlink(missing_ok=True)
+
+
+def record(out: Path, patterns: tuple[str, ...]) -> Path:
+    """List the files of this build (every match of `patterns`) in the manifest, written whole or not at all."""
+    names = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file()})
+    tmp = out / (MANIFEST + ".partial")
+    tmp.write_text(json.dumps({"kosmap": "build", "files": names}, indent=1) + "\n")
+    os.replace(tmp, out / MANIFEST)
+    return out / MANIFEST

@@ -1,0 +1,143 @@
+"""Output folders: refused before any work when unusable; a build replaces its own earlier files and never the user's;
+a failed, killed or terminated build leaves no result looking valid."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import pytest
+
+from frontend.logs import open_log
+from frontend.logs.writer import McapWriter
+from frontend.records import CameraModel, DepthFrame
+from mapping.config import load_config
+from mapping.outdir import MANIFEST, OutputError, check_out, claim
+from mapping.pipeline import BUILD_FILES, build
+from tools.cli import main
+
+SETS = ["build.depth_rate=0"]
+
+
+@pytest.fixture(scope="module")
+def laser_log(tmp_path_factory):
+    """2.5 s of the simulated room, its laser, odometry and gyro only (a build of it takes about a second)."""
+    from tools.simulate import SimConfig, load_world, simulate
+
+    d = tmp_path_factory.mktemp("outdir")
+    full = d / "room.mcap"
+    simulate(load_world("room"), SimConfig(seed=2, duration=2.5), full)
+    log = d / "laser.mcap"
+    with open_log(full) as src, McapWriter(log) as w:
+        for rec in src.read(src.info().types()):
+            if not isinstance(rec, (DepthFrame, CameraModel)):
+                w.write(rec, rec.topic)
+    return log
+
+
+def _snapshot(d):
+    return {p.name: p.read_bytes() for p in d.iterdir() if p.is_file()}
+
+
+def test_an_unusable_out_is_refused_in_one_line(tmp_path, monkeypatch):
+    f = tmp_path / "afile"
+    f.write_text("mine")
+    for bad, msg in (("", "is empty"), (" ", "is empty"), (f, "is a file"), (f / "sub", "is a file, so no folder")):
+        with pytest.raises(OutputError, match=msg) as e:
+            check_out(bad)
+        assert "\n" not in str(e.value)
+    assert check_out(tmp_path / "new" / "deeper") == tmp_path / "new" / "deeper"
+    assert not (tmp_path / "new").exists()  # checking makes nothing
+    monkeypatch.setattr(os, "access", lambda p, mode: False)  # (root may write anywhere: the check is what is tested)
+    with pytest.raises(OutputError, match=f"no permission to write in {tmp_path}"):
+        check_out(tmp_path / "new")
+
+
+def test_claim_refuses_to_replace_files_no_build_wrote(tmp_path):
+    (tmp_path / "ground_truth.tum").write_text("0 0 0 0 0 0 0 1\n")
+    (tmp_path / "map_office.png").write_bytes(b"png")
+    (tmp_path / "notes.txt").write_text("mine")
+    before = _snapshot(tmp_path)
+    with pytest.raises(OutputError, match=r"holds ground_truth.tum, map_office.png, which this build would overwrite"):
+        claim(tmp_path, BUILD_FILES)
+    assert _snapshot(tmp_path) == before
+
+
+def test_claim_removes_the_previous_builds_files_and_a_killed_builds_leftovers_only(tmp_path):
+    for name in ("map_laser.png", "metrics.json", "report.md", "notes.txt", "map_mine.png"):
+        (tmp_path / name).write_text(name)
+    (tmp_path / MANIFEST).write_text(json.dumps({"kosmap": "build", "files": ["map_laser.png", "metrics.json", "report.md"]}))
+    (tmp_path / ".kosmap-spill-x1y2").mkdir()
+    (tmp_path / ".kosmap-spill-x1y2" / "scans.bin").write_bytes(b"x")
+    (tmp_path / "stats.csv.partial").write_text("half")
+    with pytest.raises(OutputError, match="holds map_mine.png,"):
+        claim(tmp_path, BUILD_FILES)  # map_mine.png matches map_*.png but the manifest does not list it
+    (tmp_path / "map_mine.png").rename(tmp_path / "mine.png")
+    claim(tmp_path, BUILD_FILES)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.png", "notes.txt"]
+
+
+def test_a_folder_of_a_build_before_manifests_is_still_a_builds(tmp_path):
+    (tmp_path / "metrics.json").write_text(json.dumps({"kosmap": "build"}))
+    (tmp_path / "trajectory_kos.tum").write_text("")
+    (tmp_path / "notes.txt").write_text("mine")
+    claim(tmp_path, BUILD_FILES)
+    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.slow
+def test_a_build_replaces_its_own_files_keeps_the_users_and_refuses_to_overwrite_theirs(laser_log, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    res = build(laser_log, out, load_config(None, SETS), workers=0)
+    listed = set(json.loads((out / MANIFEST).read_text())["files"])
+    assert listed == {p.name for p in out.iterdir() if p.is_file()} - {"notes.txt", MANIFEST}
+    assert {"metrics.json", "report.html", "map_laser.png", "config.toml", "trajectory_laser.tum"} <= listed
+    assert res.metrics["timing"]["total_s"] > 0
+    build(laser_log, out, load_config(None, SETS), workers=0)  # again: its own files replaced
+    assert (out / "notes.txt").read_text() == "mine" and (out / "map_laser.png").is_file()
+
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "ground_truth.tum").write_text("0 1 2 3 0 0 0 1\n")
+    before = _snapshot(other)
+    assert main(["build", str(laser_log), "--out", str(other), "--set", SETS[0], "-j", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("kosmap: error: --out") and "ground_truth.tum" in err and "\n" not in err
+    assert _snapshot(other) == before and [p.name for p in other.iterdir()] == ["ground_truth.tum"]
+
+
+@pytest.mark.slow
+def test_a_failed_build_leaves_nothing_that_looks_like_a_result(laser_log, tmp_path):
+    out = tmp_path / "out"
+    build(laser_log, out, load_config(None, SETS), workers=0)  # a good result first: the failed run replaces it
+
+    def fail(_p):
+        raise RuntimeError("disk on fire")
+
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        build(laser_log, out, load_config(None, SETS), workers=0, on_progress=fail)
+    assert list(out.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_sigterm_stops_a_build_and_removes_what_it_wrote(laser_log, tmp_path, monkeypatch, capsys):
+    import mapping.pipeline as pipeline
+
+    warm = pipeline._warm_grid
+
+    def terminate_now():  # SIGTERM arrives mid-build, once the temporary folder exists
+        warm()
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(pipeline, "_warm_grid", terminate_now)
+    out = tmp_path / "out"
+    (tmp_path / "out").mkdir()
+    (out / "notes.txt").write_text("mine")
+    before = signal.getsignal(signal.SIGTERM)
+    assert main(["build", str(laser_log), "--out", str(out), "--set", SETS[0], "-j", "2"]) == 128 + signal.SIGTERM
+    assert "kosmap: terminated" in capsys.readouterr().err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]  # no spill folder, no config, no maps
+    assert signal.getsignal(signal.SIGTERM) == before  # main() put the handler back
