@@ -141,3 +141,20 @@ def test_sigterm_stops_a_build_and_removes_what_it_wrote(laser_log, tmp_path, mo
     assert "kosmap: terminated" in capsys.readouterr().err
     assert [p.name for p in out.iterdir()] == ["notes.txt"]  # no spill folder, no config, no maps
     assert signal.getsignal(signal.SIGTERM) == before  # main() put the handler back
+
+
+def test_every_command_that_writes_a_folder_refuses_an_unusable_out_first(laser_log, tmp_path, capsys):
+    import numpy as np
+
+    from mapping.grid import OccupancyGrid
+    from mapping.mapio import write_map_server
+
+    f = tmp_path / "afile"
+    f.write_text("mine")
+    grid = OccupancyGrid(np.full((20, 20), -1, np.int8), 0.05, (0.0, 0.0, 0.0))
+    a = write_map_server(grid, tmp_path / "a.yaml", ".png")
+    for argv in (["scan", str(laser_log)], ["compare", str(a), str(a)], ["build", str(laser_log)]):
+        assert main(argv + ["--out", str(f / "sub")]) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert err == f"kosmap: error: --out {f / 'sub'}: {f} is a file, so no folder can be made in it; give another folder"
+    assert f.read_text() == "mine"

@@ -19,13 +19,13 @@ def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, bluep
     from mapping.compare import compare, metrics_markdown, overlay_picture
     from mapping.config import config_dict
     from mapping.mapio import _atomic_write_bytes, read_blueprint, read_map_server, write_png
+    from mapping.outdir import check_out
 
     if (b_path is None) == (blueprint is None):
         raise KosmapError("give exactly one reference: a second map (B.yaml) or --blueprint BP")
     if blueprint_scale is not None and blueprint is None:
         raise KosmapError("--blueprint-scale belongs to --blueprint (a plain image's metres per pixel)")
-    if out.exists() and not out.is_dir():
-        raise KosmapError(f"--out {out} is a file; give a directory for the results")
+    out = check_out(out)  # empty, a file, under a file, not writable: refused before the maps are read
     if no_align:
         cfg.compare.align = False
     a = read_map_server(a_path)
