@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import heapq
 import io
+import os
 import struct
 from collections.abc import Iterable, Iterator
 
@@ -44,6 +45,7 @@ class McapLog(LogReader):
         self._file = open(self.path, "rb")
         self._summary = None
         self.truncated = False
+        self._damage: Exception | None = None  # what stopped a linear read
         try:
             self._summary = make_reader(self._file).get_summary()
         except _DAMAGE:
@@ -126,8 +128,9 @@ class McapLog(LogReader):
                 n += 1
                 last = max(last, item[2].log_time)
                 yield item[2].log_time, seq, item
-        except _DAMAGE:
+        except _DAMAGE as e:
             self.truncated = True
+            self._damage = e
         if self.truncated and not self.warnings:
             self._warn(f"{self.path.name} is truncated: read {n} messages up to t={last * 1e-9:.3f} s before "
                                  f"the damage; re-record or repair it (`mcap recover`) to get the rest")
@@ -179,6 +182,8 @@ class McapLog(LogReader):
             ti.count += 1
             start = message.log_time if start is None else min(start, message.log_time)
             end = message.log_time if end is None else max(end, message.log_time)
+        if self.truncated and not counts:  # damage, not topic names, is why there is nothing to map
+            raise LogError(_nothing_read(self._file, self.path.name, self._damage))
         notes = ["truncated: the file ends before its summary; counts are of the messages before the damage"] if self.truncated else []
         return LogInfo(self.path, self.format, start or 0, end or 0, list(counts.values()), self.truncated, notes)
 
@@ -333,6 +338,27 @@ def _chunk_messages(buf: bytes, channels: dict, take: dict, unzstd) -> Iterator[
                 yield i, Message(cid, log_time, body if length > _VIEW_OVER else bytes(body), pub_time, seq)
         pos += length
         i += 1
+
+
+def _nothing_read(fh, name: str, err: Exception | None) -> str:
+    """Why a damaged MCAP gave not one message, for a user: where its top-level records stop being whole (a record
+    running past the file's end, or one no writer makes), else the error the read stopped at."""
+    size, pos = os.fstat(fh.fileno()).st_size, 8  # after the magic
+    while pos < size:
+        fh.seek(pos)
+        head = fh.read(_RECORD.size)
+        op, length = _RECORD.unpack(head) if len(head) == _RECORD.size else (1, size)
+        if length >= 1 << 32 or not (0x01 <= op <= 0x0F or op >= 0x80):  # mcap's length limit; the spec's opcodes
+            return (f"{name} is damaged: the record at byte {pos} (opcode 0x{op:02x}, {length} bytes) is not an MCAP "
+                    f"record, so no message can be read; re-copy or re-record it")
+        if pos + _RECORD.size + length > size:
+            return (f"{name} is truncated: it ends after {size} bytes, inside the record at byte {pos}, so no message "
+                    f"can be read; re-copy or re-record it")
+        if op == 0x02:  # the footer: every record is whole
+            return f"{name} is damaged ({err}), so no message can be read; re-copy or re-record it"
+        pos += _RECORD.size + length
+    return (f"{name} is truncated: it ends after {size} bytes, before its footer, with no message; "
+            f"re-copy or re-record it")
 
 
 def _merge(topics: list[TopicInfo]) -> list[TopicInfo]:

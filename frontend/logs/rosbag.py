@@ -2,7 +2,9 @@
 
 The fallback serves bags whose index is missing (recording cut off) or non-standard (rosbags asserts on
 the CCNY scan_tools demo bag): it walks the records in file order (bag format 2.0) and yields
-what it can decode, stopping with a warning at damage.
+what it can decode, stopping with a warning at damage. A bag whose data ends early (cut inside a record, or
+before the index its header points to) is truncated: a warning says how much was read, and a LogError says so
+when not one message could be.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ import bz2
 import mmap
 import struct
 from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
 
 from rosbags.rosbag1 import Reader
 from rosbags.typesys import get_types_from_msg
@@ -68,9 +71,17 @@ def _next_chunk(data, pos: int) -> int | None:
     return None
 
 
-def _top_records(data, pos: int, skipped: list[int]) -> Iterator[tuple[dict, bytes]]:
-    """Top-level records. A record whose length fields are wrong (a non-standard index) is stepped over by
-    resuming at the next chunk record after the last good record's start."""
+@dataclass
+class _Walk:
+    """What a linear walk met: records it stepped over, and the record it stopped at (cut off or unreadable)."""
+
+    skipped: list[int] = field(default_factory=list)
+    stopped_at: int | None = None  # None: it reached the file's end at a record boundary
+
+
+def _top_records(data, pos: int, walk: _Walk) -> Iterator[tuple[int, dict, bytes]]:
+    """(position, header fields, data) of the top-level records. A record whose length fields are wrong (a
+    non-standard index) is stepped over by resuming at the next chunk record after the last good record's start."""
     last = pos
     while pos + 4 <= len(data):
         try:
@@ -78,12 +89,47 @@ def _top_records(data, pos: int, skipped: list[int]) -> Iterator[tuple[dict, byt
         except (EOFError, struct.error):
             nxt = _next_chunk(data, last + 1)
             if nxt is None or nxt <= last:
+                walk.stopped_at = pos
                 return
-            skipped.append(pos)
+            walk.skipped.append(pos)
             pos = last = nxt
             continue
-        yield hdr, body
+        yield pos, hdr, body
         last, pos = pos, nxt
+    if pos < len(data):  # a few bytes of a record's length field
+        walk.stopped_at = pos
+
+
+def _cut(size: int, index_pos: int | None, stopped_at: int | None, chunks: int) -> str | None:
+    """Where a bag's data ends early, in words; None when it is whole. A walk that stops inside the index (after
+    all the data, e.g. the demo bag's non-standard one) is no cut: every message before it was read."""
+    if index_pos is None:  # (a garbled header before readable chunks is no cut)
+        where = "inside" if stopped_at is not None else "before"
+        return None if chunks else f"it ends after {size} bytes, {where} its header record"
+    if stopped_at is not None and (index_pos == 0 or stopped_at < index_pos):
+        where = f"the record at byte {stopped_at}" if chunks else "its first chunk"
+        return f"it ends after {size} bytes, inside {where}"
+    if index_pos > size:
+        return f"it ends after {size} bytes, before its index at byte {index_pos}"
+    return None
+
+
+def _index_trouble(err: Exception, size: int, index_pos: int | None) -> str:
+    """Why rosbags could not read the index, for a user: what the linear walk learnt, else rosbags' own text when
+    it has any (an AssertionError has none)."""
+    if index_pos == 0:
+        return "the bag has no index: its recording was not closed; `rosbag reindex` adds one if its data is whole"
+    if index_pos is not None and index_pos > size:
+        return f"the file ends before its index at byte {index_pos}"
+    text = str(err).strip()
+    inner = err.__context__  # rosbags wraps its first error in "Bag index looks damaged: (args,)"
+    if inner is not None and str(inner) and text.startswith("Bag index looks damaged"):
+        text = f"it looks damaged: {str(inner).strip()}"
+    return text.rstrip(".") or "it is not laid out as rosbags expects"
+
+
+class _Damage(Exception):
+    """Damage the linear read met (a chunk that does not decompress, a message without its connection), in words."""
 
 
 class Ros1Bag(LogReader):
@@ -94,12 +140,15 @@ class Ros1Bag(LogReader):
         self._ts = typestore(1)
         self._reader = None
         self.truncated = False
+        self._index_error: Exception | None = None
+        self._index_pos: int | None = None  # from the bag header, once the linear read has seen it
+        self._cut_said = False  # the truncation warning is given once, by the first read
         try:
             self._reader = Reader(self.path)
             self._reader.open()
         except Exception as e:  # noqa: BLE001 - rosbags raises assorted errors on damaged or odd indices
             self._reader = None
-            self._why = f"{type(e).__name__}: {e}".strip(": ")
+            self._index_error = e
         if self._reader is not None:
             for c in self._reader.connections:
                 self._register(c.msgtype, c.msgdef.data)
@@ -117,26 +166,23 @@ class Ros1Bag(LogReader):
 
     # -- linear fallback -------------------------------------------------------------------------------------------
     def _scan(self, topics: set[str] | None) -> Iterator[tuple[int, str, str, bytes]]:
-        """(time ns, topic, msgtype, raw) in file order, without the index."""
+        """(time ns, topic, msgtype, raw) in file order, without the index. A cut or damaged file sets `truncated`
+        and warns with what was read; LogError when not one message could be."""
         with open(self.path, "rb") as fh:
             data = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)  # paged in as read: memory stays flat
         conns: dict[int, tuple[str, str]] = {}
-        skipped: list[int] = []
-        n = 0
+        walk = _Walk()
+        n = total = chunks = last = 0
+        pos, op = len(_MAGIC), 0
         try:
-            for hdr, body in _top_records(data, len(_MAGIC), skipped):
+            for pos, hdr, body in _top_records(data, len(_MAGIC), walk):
                 op = hdr.get("op", b"\0")[0]
+                if op == _OP_HEADER:
+                    self._index_pos = struct.unpack("<Q", hdr["index_pos"])[0]
+                    continue
                 if op == _OP_CHUNK:
-                    comp = hdr.get("compression", b"none").decode()
-                    if comp == "bz2":
-                        body = bz2.decompress(body)
-                    elif comp == "lz4":
-                        import lz4.frame
-
-                        body = lz4.frame.decompress(body)
-                    elif comp != "none":
-                        raise LogError(f"{self.path.name} uses chunk compression '{comp}', which kosmap cannot read")
-                    inner = _records(body)
+                    chunks += 1
+                    inner = _records(self._decompress(hdr, body, pos))
                 else:
                     inner = iter([(hdr, body)])
                 for h, b in inner:
@@ -150,14 +196,50 @@ class Ros1Bag(LogReader):
                     elif o == _OP_MSG:
                         cid = struct.unpack("<I", h["conn"])[0]
                         sec, nsec = struct.unpack("<II", h["time"])
+                        if cid not in conns:
+                            raise _Damage(f"a message at byte {pos} is on connection {cid}, which no record defines")
                         topic, msgtype = conns[cid]
+                        total += 1
                         if topics is None or topic in topics:
                             n += 1
+                            last = max(last, sec * 1_000_000_000 + nsec)
                             yield sec * 1_000_000_000 + nsec, topic, msgtype, b
-        except (EOFError, KeyError, struct.error, OSError, ValueError) as e:
-            self.truncated = True
-            self._warn(f"{self.path.name} is damaged or truncated ({e}): read {n} messages before it; "
-                       f"`rosbag reindex` may recover the rest")
+        except (_Damage, EOFError, KeyError, struct.error, ValueError) as e:
+            where = "a record inside the chunk" if op == _OP_CHUNK else "the record"
+            detail = str(e) if isinstance(e, _Damage) else f"{where} at byte {pos} is cut off or garbled"
+            self._stopped("damaged", detail, n, total, last)
+            return
+        cut = _cut(len(data), self._index_pos, walk.stopped_at, chunks)
+        if cut is not None:
+            self._stopped("truncated", cut, n, total, last)
+
+    def _decompress(self, hdr: dict, body: bytes, pos: int) -> bytes:
+        """A chunk's records; _Damage when they do not decompress."""
+        comp = hdr.get("compression", b"none").decode(errors="replace")
+        try:
+            if comp == "bz2":
+                return bz2.decompress(body)
+            if comp == "lz4":
+                import lz4.frame
+
+                return lz4.frame.decompress(body)
+        except (OSError, ValueError, RuntimeError, EOFError) as e:  # (lz4 raises RuntimeError)
+            raise _Damage(f"the {comp} chunk at byte {pos} does not decompress ({e})") from e
+        if comp != "none":
+            raise LogError(f"{self.path.name} uses chunk compression '{comp}', which kosmap cannot read")
+        return body
+
+    def _stopped(self, kind: str, detail: str, n: int, total: int, last_ns: int) -> None:
+        """Mark a read that ended early ("truncated" or "damaged"): LogError when the file gave no message at all,
+        else one warning saying how much was read."""
+        self.truncated = True
+        if not total:
+            raise LogError(f"{self.path.name} is {kind}: {detail}, so no message can be read; re-copy or re-record it")
+        if not self._cut_said:
+            self._cut_said = True
+            where = "the cut" if kind == "truncated" else "the damage"
+            self._warn(f"{self.path.name} is {kind} ({detail}): read {n} messages up to t={last_ns * 1e-9:.3f} s "
+                       f"before {where}; re-copy or re-record it to get the rest")
 
     def _raw(self, topics: Iterable[str] | None) -> Iterator[tuple[int, str, str, bytes]]:
         if self._reader is not None:
@@ -185,7 +267,8 @@ class Ros1Bag(LogReader):
             counts.setdefault(topic, TopicInfo(topic, mt, 0)).count += 1
             start = t if start is None else min(start, t)
             end = t if end is None else max(end, t)
-        notes = [f"index unreadable ({self._why}); read linearly"]
+        why = _index_trouble(self._index_error, self.path.stat().st_size, self._index_pos)
+        notes = [f"the bag's index could not be read ({why}); read it from start to end instead"]
         if self.truncated:
             notes.append("truncated: counts are of the messages before the damage")
         return LogInfo(self.path, self.format, start or 0, end or 0, list(counts.values()), self.truncated, notes)
