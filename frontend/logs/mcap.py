@@ -45,6 +45,7 @@ class McapLog(LogReader):
         self._file = open(self.path, "rb")
         self._summary = None
         self.truncated = False
+        self._cut_said = False  # the truncation warning is given once (other warnings may come before it)
         self._damage: Exception | None = None  # what stopped a linear read
         try:
             self._summary = make_reader(self._file).get_summary()
@@ -131,7 +132,8 @@ class McapLog(LogReader):
         except _DAMAGE as e:
             self.truncated = True
             self._damage = e
-        if self.truncated and not self.warnings:
+        if self.truncated and not self._cut_said:
+            self._cut_said = True
             self._warn(f"{self.path.name} is truncated: read {n} messages up to t={last * 1e-9:.3f} s before "
                                  f"the damage; re-record or repair it (`mcap recover`) to get the rest")
 

@@ -193,3 +193,24 @@ def test_real_bag_cut_in_half_warns(tmp_path):
         n = sum(1 for r in log.read(["/scan"]) if isinstance(r, Scan))
         assert 0 < n < 13631
         assert len(log.warnings) == 1 and f"read {n} messages" in log.warnings[0]
+
+
+def test_a_cut_mcap_says_so_even_after_another_warning(tmp_path):
+    from frontend.records import Imu
+
+    import numpy as np
+
+    recs = [r for r in records(n=40) if isinstance(r, (Scan, Odometry))]
+    t0 = recs[0].stamp_ns
+    bad = Imu(t0, np.array([np.nan, 0.0, 0.0]), np.array([0.0, 0.0, 9.81]), topic="/imu")  # warned first
+    whole = tmp_path / "whole.mcap"
+    with McapWriter(whole, chunk_size=4096) as w:
+        w.write(bad, "/imu")
+        for r in recs:
+            w.write(r, r.topic)
+    cut = _cut(whole, tmp_path / "cut.mcap", whole.stat().st_size * 2 // 3)
+    with open_log(cut) as lg:  # read before info(): the IMU's warning comes first
+        n = sum(1 for _ in lg.read(["/imu", recs[0].topic, recs[1].topic]))
+        assert 0 < n < len(recs) + 1
+        assert any("IMU on /imu" in w for w in lg.warnings)
+        assert any("cut.mcap is truncated" in w for w in lg.warnings), lg.warnings
