@@ -23,7 +23,8 @@ DATASETS = ("tum_fr1_xyz", "open3d_rgbd_formats", "slambook2_ch5_rgbd", "cape_tu
 
 @dataclass
 class DepthSample:
-    """One real depth frame: metres (float32, 0 = no data), its camera, and labels where the dataset has them."""
+    """One real depth frame: metres (float32, 0 = no data), its camera, and labels where the dataset has them;
+    `units` is the image units per metre the file stores (None: not linear units, e.g. disparity or a cloud)."""
 
     dataset: str
     name: str
@@ -31,6 +32,7 @@ class DepthSample:
     camera: CameraModel
     stamp: float = 0.0
     labels: np.ndarray | None = None
+    units: float | None = None
 
 
 def _cam(w: int, h: int, fx: float, fy: float, cx: float, cy: float, frame_id: str = "camera") -> CameraModel:
@@ -201,21 +203,22 @@ def iter_dataset(folder: str | Path, limit: int | None = None, every: int = 1) -
                 files.append((float(t), folder / rel))
         files = files[::every][:limit]
         for t, p in files:
-            yield DepthSample(name, p.stem, read_tum_depth(p), _cam(640, 480, *ROS_DEFAULT), t)
+            yield DepthSample(name, p.stem, read_tum_depth(p), _cam(640, 480, *ROS_DEFAULT), t, units=5000.0)
     elif name == "open3d_rgbd_formats":
-        items = [("TUM", read_tum_depth, "TUM_depth.png", (535.4, 539.2, 320.1, 247.6)),
-                 ("SUN", read_sun_depth, "SUN_depth.png", ROS_DEFAULT),
-                 ("NYU", read_nyu_depth, "NYU_depth.pgm", (582.6245, 582.6910, 313.0448, 238.4439))]
-        for label, reader, fn, k in items[::every][:limit]:
+        items = [("TUM", read_tum_depth, "TUM_depth.png", (535.4, 539.2, 320.1, 247.6), 5000.0),
+                 ("SUN", read_sun_depth, "SUN_depth.png", ROS_DEFAULT, 1000.0),
+                 ("NYU", read_nyu_depth, "NYU_depth.pgm", (582.6245, 582.6910, 313.0448, 238.4439), None)]
+        for label, reader, fn, k, units in items[::every][:limit]:
             d = reader(folder / fn)
-            yield DepthSample(name, label, d, _cam(d.shape[1], d.shape[0], *k))
+            yield DepthSample(name, label, d, _cam(d.shape[1], d.shape[0], *k), units=units)
     elif name == "slambook2_ch5_rgbd":
         files = sorted((folder / "depth").glob("*.pgm"), key=lambda p: int(p.stem))[::every][:limit]
         for p in files:
-            yield DepthSample(name, p.stem, read_mm(p), _cam(640, 480, 518.0, 519.0, 325.5, 253.5), float(p.stem))
+            yield DepthSample(name, p.stem, read_mm(p), _cam(640, 480, 518.0, 519.0, 325.5, 253.5), float(p.stem),
+                              units=1000.0)
     elif name == "cape_tunnel_frame":
         d = read_mm(folder / "depth_0.png")
-        yield DepthSample(name, "depth_0", d, _cam(640, 480, 575.92685, 576.40792, 315.15026, 230.58581))
+        yield DepthSample(name, "depth_0", d, _cam(640, 480, 575.92685, 576.40792, 315.15026, 230.58581), units=1000.0)
     elif name == "pcl_mosd_plane_gt":
         for p in sorted(folder.glob("*.pcd"), key=lambda p: (len(p.stem), p.stem))[::every][:limit]:
             yield read_mosd(p)

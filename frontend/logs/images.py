@@ -51,8 +51,9 @@ def depth_files(folder: Path) -> list[Path]:
     return []
 
 
-def read_camera_file(path: str | Path) -> tuple[dict, float]:
-    """{fx, fy, cx, cy[, width, height]} and depth_scale (units per metre, default 1000) from YAML/JSON."""
+def read_camera_file(path: str | Path, default_scale: float | None = 1000.0) -> tuple[dict, float | None]:
+    """{fx, fy, cx, cy[, width, height]} and depth_scale (units per metre) from YAML/JSON; `default_scale` when the
+    file gives none (None lets a caller with its own depth encoding tell "not given" apart)."""
     p = Path(path)
     try:
         text = p.read_text()
@@ -82,10 +83,35 @@ def read_camera_file(path: str | Path) -> tuple[dict, float]:
     for k in ("width", "height"):
         if k in data:
             cam[k] = int(data[k])
-    scale = float(data.get("depth_scale", 1000.0))
-    if scale <= 0 or cam["fx"] <= 0 or cam["fy"] <= 0:
+    try:
+        scale = float(data["depth_scale"]) if "depth_scale" in data else default_scale
+    except (ValueError, TypeError) as e:
+        raise LogError(f"camera file {p}: depth_scale {data['depth_scale']!r} is not a number ({e})") from e
+    if not (cam["fx"] > 0 and cam["fy"] > 0) or (scale is not None and not 0 < scale < np.inf):
         raise LogError(f"camera file {p}: fx, fy and depth_scale must be positive")
     return cam, scale
+
+
+def check_depth_scale(scale: float | None, option: str = "--depth-scale") -> float | None:
+    """The depth scale if it is a positive finite number (None: not given); a one-line error otherwise."""
+    if scale is not None and not 0 < scale < np.inf:
+        raise LogError(f"{option} {scale:g} must be a positive number of image units per metre "
+                       f"(1000 = millimetres, 5000 = TUM)")
+    return scale
+
+
+def scale_words(scale: float) -> str:
+    """How a warning names a depth scale: "millimetres" for 1000, else the number of image units per metre."""
+    return "millimetres" if scale == 1000.0 else f"{scale:g} image units per metre"
+
+
+def camera_model(intrinsics: dict, shape: tuple[int, int], frame_id: str = FRAME_ID, topic: str = INFO_TOPIC,
+                 stamp_ns: int = 0) -> CameraModel:
+    """The pinhole camera of a camera file's intrinsics for an image of `shape` (its size unless the file gives one)."""
+    c = intrinsics
+    K = np.array([[c["fx"], 0.0, c["cx"]], [0.0, c["fy"], c["cy"]], [0.0, 0.0, 1.0]])
+    return CameraModel(c.get("width", shape[1]), c.get("height", shape[0]), K, np.zeros(5), "plumb_bob", frame_id,
+                       topic, stamp_ns)
 
 
 def find_camera_file(folder: Path) -> Path | None:
@@ -115,11 +141,11 @@ class ImageFolder(LogReader):
         self.depth_scale = 1000.0
         if cf is not None:
             self.intrinsics, self.depth_scale = read_camera_file(cf)
-        else:
-            self._warn(f"no camera file in {self.path}: using the field-of-view model and depth in millimetres "
-                       f"(give --camera FILE with fx, fy, cx, cy, depth_scale)")
-        if depth_scale is not None:
-            self.depth_scale = float(depth_scale)
+        if depth_scale is not None:  # an explicit scale beats the camera file's
+            self.depth_scale = check_depth_scale(float(depth_scale), "depth scale")
+        if cf is None:
+            self._warn(f"no camera file in {self.path}: using the field-of-view model and depth in "
+                       f"{scale_words(self.depth_scale)} (give --camera FILE with fx, fy, cx, cy, depth_scale)")
         self.fps = fps
         self.frame_id = frame_id
         self.stamps_ns = self._stamps()
@@ -151,10 +177,7 @@ class ImageFolder(LogReader):
     def camera(self, shape: tuple[int, int]) -> CameraModel | None:
         if self.intrinsics is None:
             return None
-        c = self.intrinsics
-        K = np.array([[c["fx"], 0.0, c["cx"]], [0.0, c["fy"], c["cy"]], [0.0, 0.0, 1.0]])
-        return CameraModel(c.get("width", shape[1]), c.get("height", shape[0]), K, np.zeros(5), "plumb_bob",
-                           self.frame_id, INFO_TOPIC, self.stamps_ns[0])
+        return camera_model(self.intrinsics, shape, self.frame_id, INFO_TOPIC, self.stamps_ns[0])
 
     def read(self, topics: Iterable[str] | None = None) -> Iterator[DepthFrame | CameraModel]:
         want = set(topics) if topics is not None else {DEPTH_TOPIC, INFO_TOPIC}

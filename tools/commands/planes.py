@@ -4,8 +4,12 @@ plane points and normals (npz and MCAP), processed depth PNGs and Fig. 5.2-style
 from __future__ import annotations
 
 import csv
+import itertools
 import json
-from collections.abc import Iterator
+import os
+import shutil
+import tempfile
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Optional
@@ -16,14 +20,17 @@ import typer
 from frontend.camera import camera_for, camera_mount, config_mount
 from frontend.errors import KosmapError, LogError
 from frontend.fspf import filter_planes, frame_seed, warmup
+from frontend.logs.images import camera_model, check_depth_scale, read_camera_file
 from frontend.planes import Planes
+from mapping.outdir import check_out
 from frontend.records import CameraModel, DepthFrame, Transform, Transforms
 from tools import options as O
 
 CLOUD_TOPIC = "/kosmap/planes/points"
 NORMALS_TOPIC = "/kosmap/planes/normals"
-STATS_COLUMNS = ("frame", "source", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
-                 "planes", "elapsed_ms")
+STATS_COLUMNS = ("frame", "source", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct",
+                 "unexamined_pct", "remaining", "planes", "elapsed_ms")
+STAGE_PREFIX = ".kosmap-planes-"  # the hidden folder in --out that a run writes into until it succeeds
 
 
 @dataclass
@@ -39,13 +46,59 @@ class Item:
     frame_id: str
 
 
-def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | None,
-                every: int, limit: int | None) -> tuple[int, Iterator[Item], list[str]]:
-    """Frames of a log (MCAP, bag) or of a folder of depth images."""
+@dataclass
+class Override:
+    """What --camera and --depth-scale say, read and checked before any work; None leaves the source's own."""
+
+    camera_file: Path | None = None
+    intrinsics: dict | None = None  # fx, fy, cx, cy[, width, height] of the camera file
+    depth_scale: float | None = None  # image units per metre: --depth-scale, else the camera file's depth_scale
+    scale_from: str = ""  # which option gave depth_scale, for the warnings
+
+    def camera(self, shape: tuple[int, int], frame_id: str) -> CameraModel | None:
+        """The camera file's model for an image of `shape`, or None without --camera."""
+        return None if self.intrinsics is None else camera_model(self.intrinsics, shape, frame_id, "")
+
+
+def _override(camera_file: Path | None, depth_scale: float | None) -> Override:
+    """Read --camera and check --depth-scale up front: a missing file or a scale ≤ 0 stops the run in one line."""
+    check_depth_scale(depth_scale)
+    if camera_file is None:
+        return Override(None, None, depth_scale, f"--depth-scale {depth_scale:g}" if depth_scale is not None else "")
+    intrinsics, file_scale = read_camera_file(camera_file, default_scale=None)
+    if depth_scale is not None:
+        return Override(camera_file, intrinsics, depth_scale, f"--depth-scale {depth_scale:g}")
+    return Override(camera_file, intrinsics, file_scale,
+                    f"depth_scale {file_scale:g} of --camera {camera_file}" if file_scale is not None else "")
+
+
+def _note(warnings: list[str], text: str) -> None:
+    """Add a warning once."""
+    if text not in warnings:
+        warnings.append(text)
+
+
+def _log_meters(rec: DepthFrame, ov: Override, warnings: list[str]) -> np.ndarray:
+    """A log's depth frame in metres: 16-bit images at the explicit depth scale if any (else millimetres)."""
+    if ov.depth_scale is None:
+        return rec.meters()
+    if rec.encoding != "16UC1":
+        _note(warnings, f"{ov.scale_from} does not apply to {rec.topic}, whose {rec.encoding} images are in metres")
+        return rec.meters()
+    return np.divide(rec.image, np.float32(ov.depth_scale), dtype=np.float32)
+
+
+def _log_frames(path: Path, cfg, ov: Override, every: int,
+                limit: int | None) -> tuple[int, Generator[Item, None, None], list[str]]:
+    """Frames of a log (MCAP, bag) or of a folder of depth images; --camera and --depth-scale replace its own."""
     from frontend.logs import detect_topics, open_log
     from frontend.logs.images import ImageFolder
 
-    log = ImageFolder(path, camera_file, depth_scale) if path.is_dir() else open_log(path)
+    if path.is_dir():  # the folder reader applies the camera file and the scale itself
+        log = ImageFolder(path, ov.camera_file, ov.depth_scale)
+        ov = Override()
+    else:
+        log = open_log(path)
     info = log.info()
     det = detect_topics(info.types(), cfg.topics)
     if not det.depth:
@@ -56,6 +109,10 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
     if limit is not None:
         total = min(total, limit)
     wanted = list(det.depth) + [i for i in det.info.values() if i] + ([det.tf_static] if det.tf_static else [])
+    warnings = log.warnings  # the reader adds to it while reading (e.g. a truncated log)
+    if ov.camera_file is not None and any(det.info.values()):
+        _note(warnings, f"--camera {ov.camera_file} replaces the camera info of "
+                        f"{', '.join(i for i in det.info.values() if i)}")
 
     def gen() -> Iterator[Item]:
         infos: dict[str, CameraModel] = {}
@@ -77,8 +134,9 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
                         continue
                     if limit is not None and done >= limit:
                         break
-                    depth = rec.meters()
-                    cam = camera_for(depth.shape, infos.get(det.info.get(rec.topic) or ""), cfg.depth, rec.frame_id)
+                    depth = _log_meters(rec, ov, warnings)
+                    own = ov.camera(depth.shape, rec.frame_id) or infos.get(det.info.get(rec.topic) or "")
+                    cam = camera_for(depth.shape, own, cfg.depth, rec.frame_id)
                     if rec.frame_id not in mounts:
                         mounts[rec.frame_id] = camera_mount(statics, rec.frame_id, cfg.depth)[0]
                     yield Item(k, rec.stamp_ns, depth, cam, mounts[rec.frame_id], rec.topic, rec.frame_id or "camera")
@@ -86,24 +144,43 @@ def _log_frames(path: Path, cfg, camera_file: Path | None, depth_scale: float | 
         finally:
             log.close()
 
-    return total, gen(), log.warnings
+    return total, gen(), warnings
 
 
-def _dataset_frames(folders: list[Path], cfg, every: int, limit: int | None) -> tuple[int, Iterator[Item], list[str]]:
+def _dataset_depth(s, ov: Override, warnings: list[str]) -> np.ndarray:
+    """A dataset frame in metres at the explicit depth scale if any, else at the dataset's own (SOURCES.md)."""
+    if ov.depth_scale is None or ov.depth_scale == s.units:
+        return s.depth
+    if s.units is None:
+        _note(warnings, f"{ov.scale_from} does not apply to the frames of {s.dataset} stored as disparity or as a "
+                        f"point cloud (not in image units); their own decoding is used")
+        return s.depth
+    _note(warnings, f"{ov.scale_from} replaces {s.dataset}'s own depth scale ({s.units:g} image units per metre)")
+    return s.depth * np.float32(s.units / ov.depth_scale)
+
+
+def _dataset_frames(folders: list[Path], cfg, ov: Override, every: int,
+                    limit: int | None) -> tuple[int, Generator[Item, None, None], list[str]]:
+    """Frames of the known datasets (tools.datasets); --camera and --depth-scale replace their own, with a warning."""
     from tools.datasets import iter_dataset
 
     total = sum(sum(1 for _ in _names(f, every, limit)) for f in folders)
+    warnings: list[str] = []
 
     def gen() -> Iterator[Item]:
         k = 0
         for f in folders:
             for s in iter_dataset(f, limit, every):
-                cam = camera_for(s.depth.shape, s.camera, cfg.depth)
-                yield Item(k, int(round(s.stamp * 1e9)), s.depth, cam, config_mount(cfg.depth, "camera"),
+                depth = _dataset_depth(s, ov, warnings)
+                own = ov.camera(depth.shape, "camera")
+                if own is not None and not np.allclose(own.K, s.camera.K):
+                    _note(warnings, f"--camera {ov.camera_file} replaces the intrinsics of {s.dataset}")
+                cam = camera_for(depth.shape, own or s.camera, cfg.depth)
+                yield Item(k, int(round(s.stamp * 1e9)), depth, cam, config_mount(cfg.depth, "camera"),
                            f"{s.dataset}/{s.name}", "camera")
                 k += 1
 
-    return total, gen(), []
+    return total, gen(), warnings
 
 
 def _names(folder: Path, every: int, limit: int | None) -> list[str]:
@@ -159,6 +236,13 @@ def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) 
     writer.write_msg(NORMALS_TOPIC, "geometry_msgs/msg/PoseArray", msg, t)
 
 
+def _shares(planes: Planes) -> dict:
+    """The frame's Table 5.2 columns plus the share of eligible pixels never examined (FSPF+ stops once
+    fspf.analysed_fraction of them are, FSPF at n_max points), so that the five shares add up to 100 %."""
+    st = planes.stats
+    return {**st.row(), "unexamined_pct": 100.0 * st.remaining / st.pixels if st.pixels else 0.0}
+
+
 def _summary_row(rows: list[dict]) -> dict:
     out: dict = {"frame": "summary", "source": f"{len(rows)} frames", "stamp": ""}
     for c in STATS_COLUMNS[3:]:
@@ -167,23 +251,104 @@ def _summary_row(rows: list[dict]) -> dict:
     return out
 
 
-def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, depth_scale: float | None = None,
-               save_depth: bool = False, figures: int = 3, every: int = 1, limit: int | None = None,
-               mcap: bool = True, npz: bool = True, mcap_points: int = 30000, progress: bool = True) -> dict:
-    """Filter every frame of `path` into `out`; returns the summary (also written as summary.json)."""
-    from mapping.config import write_config
-    from tools.datasets import detect
-
+def _check_args(path: Path, every: int, limit: int | None, figures: int) -> None:
+    """Refuse a missing input and nonsense counts before anything is read or written."""
     if not path.exists():
         raise KosmapError(f"{path} does not exist; give a log (.mcap, .bag), a folder of depth images, or a dataset folder")
     if every < 1:
         raise KosmapError(f"--every {every} must be at least 1")
+    if limit is not None and limit < 1:
+        raise KosmapError(f"--max-frames {limit} must be at least 1; leave it out to filter every frame")
+    if figures < 0:
+        raise KosmapError(f"--figures {figures} must be 0 or more")
+
+
+def _first_frame(path: Path, frames: Iterator[Item]) -> Iterator[Item]:
+    """Read the first frame before writing anything (an unreadable first image or no frame at all fails here)."""
+    first = next(frames, None)
+    if first is None:
+        raise KosmapError(f"{path} yielded no depth frames; check --every/--max-frames and the depth topic")
+    return itertools.chain([first], frames)
+
+
+def _stage(out: Path) -> tuple[Path, Path | None]:
+    """A fresh hidden folder in `out` for this run's files, and the outermost folder this call created (if any)."""
+    made = None
+    p = out.absolute()
+    while not p.exists():
+        made, p = p, p.parent
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=STAGE_PREFIX, suffix=".partial", dir=out)), made
+    except OSError as e:
+        raise KosmapError(f"--out {out}: cannot write there ({e.strerror}); give another folder") from e
+
+
+def _commit(stage: Path, out: Path) -> None:
+    """Move the run's files into `out`, replacing a previous run's of the same name; summary.json goes last."""
+    for p in sorted(stage.iterdir(), key=lambda p: (p.name == "summary.json", p.name)):
+        dest = out / p.name
+        if p.is_dir() and dest.is_dir():
+            for q in p.iterdir():
+                os.replace(q, dest / q.name)
+        else:
+            os.replace(p, dest)
+    shutil.rmtree(stage)
+
+
+def _discard(stage: Path, out: Path, made: Path | None) -> None:
+    """Remove what a failed run wrote: its hidden folder, and the folders it created for `out` (if left empty)."""
+    shutil.rmtree(stage, ignore_errors=True)
+    if made is None:
+        return
+    p = out.absolute()
+    while True:
+        try:
+            p.rmdir()  # only an empty folder: files the user put there meanwhile stay
+        except OSError:
+            return
+        if p == made:
+            return
+        p = p.parent
+
+
+def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, depth_scale: float | None = None,
+               save_depth: bool = False, figures: int = 3, every: int = 1, limit: int | None = None,
+               mcap: bool = True, npz: bool = True, mcap_points: int = 30000, progress: bool = True) -> dict:
+    """Filter every frame of `path` into `out`; returns the summary (also written as summary.json).
+
+    Options, the camera file, `out` and the first frame are checked before anything is written; the outputs go
+    to a hidden folder in `out` and are moved into place only when the run succeeds, so a failure leaves none."""
+    from tools.datasets import detect
+
+    _check_args(path, every, limit, figures)
+    ov = _override(camera_file, depth_scale)
+    check_out(out)
     folders = detect(path) if path.is_dir() else []
     if folders:
-        total, frames, warnings = _dataset_frames(folders, cfg, every, limit)
+        total, frames, warnings = _dataset_frames(folders, cfg, ov, every, limit)
     else:
-        total, frames, warnings = _log_frames(path, cfg, camera_file, depth_scale, every, limit)
-    out.mkdir(parents=True, exist_ok=True)
+        total, frames, warnings = _log_frames(path, cfg, ov, every, limit)
+    stage, made = None, None
+    try:
+        checked = _first_frame(path, frames)
+        stage, made = _stage(out)
+        summary = _filter_frames(path, stage, cfg, total, checked, warnings, save_depth=save_depth, figures=figures,
+                                 mcap=mcap, npz=npz, mcap_points=mcap_points, progress=progress)
+        _commit(stage, out)
+    except BaseException:
+        frames.close()  # the log reader, if the frames stopped early
+        if stage is not None:
+            _discard(stage, out, made)
+        raise
+    return summary
+
+
+def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item], warnings: list[str], *,
+                   save_depth: bool, figures: int, mcap: bool, npz: bool, mcap_points: int, progress: bool) -> dict:
+    """Filter the frames and write every output into `out` (the run's hidden folder); returns the summary."""
+    from mapping.config import write_config
+
     write_config(cfg, out / "config.toml")
     warmup(cfg.fspf.method)
     fig_step = max(1, -(-total // figures)) if figures > 0 else 0
@@ -205,7 +370,7 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
                 planes = filter_planes(item.depth, item.camera, cfg.fspf, cfg.depth, item.mount,
                                        seed=frame_seed(cfg.fspf, item.index))
                 name = f"{n:06d}"
-                row = {"frame": name, "source": item.source, "stamp": f"{item.stamp_ns * 1e-9:.6f}", **planes.stats.row()}
+                row = {"frame": name, "source": item.source, "stamp": f"{item.stamp_ns * 1e-9:.6f}", **_shares(planes)}
                 rows.append(row)
                 if npz:
                     (out / "planes").mkdir(exist_ok=True)
@@ -235,8 +400,6 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
         raise
     if writer is not None:
         writer.close()
-    if not rows:
-        raise KosmapError(f"{path} yielded no depth frames; check --every/--max-frames and the depth topic")
     summary_row = _summary_row(rows)
     with open(out / "stats.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=STATS_COLUMNS)
@@ -259,8 +422,8 @@ def register(app: typer.Typer) -> None:
         out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
         method: Annotated[Optional[str], typer.Option("--method", help="fspf+ (thesis, default) or fspf (Biswas).")] = None,
         save_depth: Annotated[bool, typer.Option("--save-depth", help="Write the processed depth (plane points only) as 16-bit PNG (mm).")] = False,
-        camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy, depth_scale) for an image folder.")] = None,
-        depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Image units per metre (1000 = mm, 5000 = TUM); overrides the camera file.")] = None,
+        camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy[, depth_scale]); replaces the intrinsics of the folder, dataset or log.")] = None,
+        depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Image units per metre of 16-bit depth (1000 = mm, 5000 = TUM); overrides the camera file and the dataset's own.")] = None,
         figures: Annotated[int, typer.Option("--figures", help="How many frames get a Fig. 5.2-style figure (spread over the run).")] = 3,
         every: Annotated[int, typer.Option("--every", help="Process every Nth depth frame.")] = 1,
         max_frames: Annotated[Optional[int], typer.Option("--max-frames", help="Stop after this many frames.")] = None,
@@ -282,8 +445,9 @@ def register(app: typer.Typer) -> None:
         s = run_planes(source, out, cfg, camera_file=camera, depth_scale=depth_scale, save_depth=save_depth,
                        figures=figures, every=every, limit=max_frames, mcap=not no_mcap, npz=not no_npz)
         print(f"{s['frames']} frames, {s['method']} ({s['backend']}): median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
-              f"per frame; ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
-              f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, {s['planes']:.1f} planes per frame")
+              f"per frame; of the pixels: ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
+              f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, "
+              f"not examined {s['unexamined_pct']:.1f} %; {s['planes']:.1f} planes per frame")
         for w in s["warnings"]:
             print(f"warning: {w}")
         print(f"wrote {out}/stats.csv, config.toml, summary.json" + ("" if no_npz else ", planes/")
