@@ -32,10 +32,11 @@ FUSED = "fused"
 
 @dataclass
 class KosConfig(StageConfig):
-    """[kos]: levels are heights above the floor in base_link; band ±0.1 m as in the thesis."""
+    """[kos]: levels are heights above the floor in base_link, each band (level ± band, ±0.1 m as in the thesis)
+    within the obstacle scan's heights."""
 
     section = "kos"
-    levels: list = param([0.3, 0.75, 1.5], doc="scan heights above the floor", unit="m")
+    levels: list = param([0.3, 0.75, 1.5], doc="scan heights above the floor, each ± band within obstacle_min..obstacle_max", unit="m")
     band: float = param(0.1, lo=0.0, lo_open=True, doc="half height of each level's band", unit="m")
     obstacle_min: float = param(0.05, doc="obstacle scan: lowest point height", unit="m")
     obstacle_max: float = param(1.9, doc="obstacle scan: highest point height", unit="m")
@@ -48,6 +49,44 @@ class KosConfig(StageConfig):
 
         if self.obstacle_max <= self.obstacle_min:
             raise ConfigError(f"config [kos] obstacle_max = {self.obstacle_max} must be above obstacle_min = {self.obstacle_min}")
+        self._check_levels()
+
+    def _check_levels(self) -> None:
+        """Each level once, its band (level ± band) between obstacle_min and obstacle_max: below obstacle_min lies
+        the floor, and a band the camera never reaches gives a map of nothing but free cells."""
+        from frontend.errors import ConfigError
+
+        lo, hi = self.obstacle_min + self.band, self.obstacle_max - self.band
+        eps = 1e-9  # 0.15 − 0.1 < 0.05 in floats
+        thesis = [0.3, 0.75, 1.5]
+        span = f"give heights from {lo:g} to {hi:g} m" + (", e.g. [0.3, 0.75, 1.5]" if lo - eps <= min(thesis) and
+                                                          max(thesis) <= hi + eps else "")
+        if not self.levels:
+            raise ConfigError(f"config [kos] levels = [] is empty: {span} (heights above the floor, a scan and a map "
+                              f"each)")
+        names = [level_name(h) for h in self.levels]
+        dup = next((n for n in names if names.count(n) > 1), None)
+        if dup is not None:
+            same = sorted({h for h, n in zip(self.levels, names) if n == dup})
+            if len(same) == 1:
+                raise ConfigError(f"config [kos] levels = {self.levels} repeats {same[0]:g} m: give each height once "
+                                  f"(a scan and a map each)")
+            raise ConfigError(f"config [kos] levels = {self.levels} has {' and '.join(f'{h:g}' for h in same)} m, both "
+                              f"named {dup} (levels are named to the centimetre): give heights at least 1 cm apart")
+        if lo > hi + eps:
+            raise ConfigError(f"config [kos] band = {self.band:g} m is too wide: a level's band (level ± band) must "
+                              f"fit between obstacle_min = {self.obstacle_min:g} and obstacle_max = {self.obstacle_max:g} m")
+        for h in self.levels:
+            if h <= 0:
+                raise ConfigError(f"config [kos] levels: {h:g} m is not above the floor (levels are heights above it, "
+                                  f"in base_link): {span}")
+            if h - self.band < self.obstacle_min - eps:
+                raise ConfigError(f"config [kos] levels: {h:g} m ± band {self.band:g} m reaches below obstacle_min = "
+                                  f"{self.obstacle_min:g} m, into the floor: {span}, or narrow [kos] band")
+            if h + self.band > self.obstacle_max + eps:
+                raise ConfigError(f"config [kos] levels: {h:g} m ± band {self.band:g} m reaches above obstacle_max = "
+                                  f"{self.obstacle_max:g} m, the top of the obstacle scan: {span}, or raise [kos] "
+                                  f"obstacle_max")
 
     def bands(self) -> list[tuple[str, float, float]]:
         """(name, lowest, highest) height of each level, then of the obstacle scan."""

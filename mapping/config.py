@@ -40,7 +40,38 @@ class Config:
 SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fields(Config)}  # type: ignore[misc]
 
 
-def _section(name: str, values: dict[str, Any], where: str):
+# Examples for list-valued keys whose default is empty (the others show their default).
+LIST_EXAMPLES: dict[str, list] = {"topics.depth": ["/kinect2/sd/image_depth"],
+                                  "topics.info": ["/kinect2/sd/camera_info"]}
+
+
+def _list_default(dotted: str) -> list | None:
+    """The default of a list-valued key ("kos.levels" → [0.3, 0.75, 1.5]); None for any other key."""
+    name, _, key = dotted.partition(".")
+    cls = SECTIONS.get(name)
+    f = next((f for f in dataclasses.fields(cls) if f.name == key), None) if cls is not None else None
+    if f is None or f.default_factory is dataclasses.MISSING:  # type: ignore[misc]
+        return None
+    d = f.default_factory()  # type: ignore[misc]
+    return d if isinstance(d, list) else None
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def _list_example(dotted: str, default: list, from_set: bool) -> str:
+    """How to give a list-valued key: its default (or an example) as --set accepts it, or as a TOML line."""
+    items = default or LIST_EXAMPLES.get(dotted, ["…"])
+    text = [f"{v:g}" if _is_number(v) else f'"{v}"' for v in items]
+    if not from_set:
+        name, _, key = dotted.partition(".")
+        return f"e.g. {key} = [{', '.join(text)}] under [{name}]"
+    bare = ",".join(f"{v:g}" if _is_number(v) else str(v) for v in items)
+    return f"e.g. --set '{dotted}=[{','.join(text)}]' or --set {dotted}={bare}"
+
+
+def _section(name: str, values: dict[str, Any], where: str, from_set: frozenset[str] | set[str] = frozenset()):
     cls = SECTIONS.get(name)
     if cls is None:
         raise ConfigError(f"{where}: unknown section [{name}]; sections are {', '.join(f'[{s}]' for s in SECTIONS)}")
@@ -50,6 +81,10 @@ def _section(name: str, values: dict[str, Any], where: str):
     for key in values:
         if key not in known:
             raise ConfigError(f"{where}: unknown key [{name}] {key}; known keys are {', '.join(sorted(known))}")
+        default = _list_default(f"{name}.{key}")
+        if default is not None and not isinstance(values[key], (list, tuple)):  # say how to write one
+            raise ConfigError(f"config [{name}] {key} = {values[key]!r} must be a list, "
+                              f"{_list_example(f'{name}.{key}', default, f'{name}.{key}' in from_set)}")
     try:
         return cls(**values)
     except TypeError as e:  # a value of a type the dataclass cannot take
@@ -62,6 +97,20 @@ def parse_value(text: str) -> Any:
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+
+
+def _comma_list(text: str, default: list) -> list | None:
+    """A list-valued key's --set value written without TOML's brackets and quotes: "0.3,0.75,1.5", "0.5" (a list
+    of one), "ground,ceiling", "[ground,ceiling]"; None when a bare item is not a number where numbers are due
+    (so that `kos.levels=abc` is told how to write a list)."""
+    bracketed = text.startswith("[") and text.endswith("]")
+    items = [t.strip() for t in (text[1:-1] if bracketed else text).split(",")]
+    if not all(items):
+        return None
+    values = [parse_value(t) for t in items]
+    if default and _is_number(default[0]):
+        return values if bracketed or all(_is_number(v) for v in values) else None
+    return [v if isinstance(v, str) else t for v, t in zip(values, items)]  # strings: "5" stays "5"
 
 
 def load_config(path: str | Path | None = None, overrides: list[str] | dict[str, Any] = ()) -> Config:
@@ -80,20 +129,29 @@ def load_config(path: str | Path | None = None, overrides: list[str] | dict[str,
         for name in data:
             _section(name, data[name], where)  # reject unknown sections and keys early
     items = overrides.items() if isinstance(overrides, dict) else (parse_override(o) for o in overrides)
+    from_set = set()
     for dotted, value in items:
         name, _, key = dotted.partition(".")
         if not key:
             raise ConfigError(f"override '{dotted}' must look like section.key=value, e.g. fspf.n_min=50")
         data.setdefault(name, {})[key] = value
-    return Config(**{name: _section(name, values, where) for name, values in data.items()})
+        from_set.add(dotted)
+    return Config(**{name: _section(name, values, where, from_set) for name, values in data.items()})
 
 
 def parse_override(text: str) -> tuple[str, Any]:
-    """"section.key=value" → ("section.key", value)."""
+    """"section.key=value" → ("section.key", value); a list-valued key also takes comma-separated items
+    (`kos.levels=0.3,0.75,1.5`, as `kosmap scan --levels` does)."""
     key, eq, value = text.partition("=")
     if not eq:
         raise ConfigError(f"override '{text}' must look like section.key=value, e.g. fspf.n_min=50")
-    return key.strip(), parse_value(value.strip())
+    key, value = key.strip(), value.strip()
+    parsed = parse_value(value)
+    default = _list_default(key)
+    if default is not None and not isinstance(parsed, list):
+        items = _comma_list(value, default)
+        return key, parsed if items is None else items
+    return key, parsed
 
 
 def config_dict(cfg: Config) -> dict[str, dict[str, Any]]:

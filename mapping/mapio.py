@@ -165,7 +165,8 @@ def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0
     if img is None:
         raise MapError(f"blueprint {p} is not an image kosmap reads (PNG, PGM, JPEG, BMP, TIFF) nor a .yaml")
     if scale is None:
-        raise MapError(f"blueprint {p} is a plain image: give its scale in metres per pixel (--blueprint-scale)")
+        raise MapError(f"blueprint {p} is a plain image: give its scale in metres per pixel (--blueprint-scale), or "
+                       f"a map_server .yaml that names it with its resolution")
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0 or not np.isfinite(scale):
         raise MapError(f"blueprint scale {scale!r} must be a positive number of metres per pixel")
     walls = img < dark * 255.0

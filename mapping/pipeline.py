@@ -323,13 +323,15 @@ def _planar(tf: Transform | None) -> np.ndarray:
 
 def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, blueprint: str | Path | None = None,
           workers: int | None = None, progress: bool = False, on_progress: Callable[[Progress], None] | None = None,
-          report: bool = True, say: Callable[[str], None] | None = None) -> BuildResult:
+          report: bool = True, say: Callable[[str], None] | None = None,
+          blueprint_scale: float | None = None) -> BuildResult:
     """Build every map of `log` into `out_dir` (see the module doc); returns the metrics and the files written.
 
     `workers`: processes for the per-frame stage (None = every core, 0 = serial in this process; the maps are
     the same). `progress`: a rich progress bar on stderr. `on_progress`: called after each frame (or laser scan
     in a log without depth); raising KeyboardInterrupt there stops the run like Ctrl-C. `say`: where phase
-    messages go (None = nowhere).
+    messages go (None = nowhere). `blueprint_scale`: metres per pixel of a plain-image blueprint (None for a
+    map_server YAML, which has its resolution).
     """
     from mapping.slam import Slam
 
@@ -348,7 +350,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     if blueprint is not None:
         from mapping.mapio import read_blueprint
 
-        bp_grid = read_blueprint(blueprint, None, cfg.compare.blueprint_dark)  # fails before any work
+        bp_grid = read_blueprint(blueprint, blueprint_scale, cfg.compare.blueprint_dark)  # fails before any work
     with open_log(log) as lg:
         info = lg.info()
         det = detect_topics(info.types(), cfg.topics)
@@ -436,7 +438,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
 
                 if has_depth:
                     frames_png = frames_figure(out)
-                traj_png = trajectory_figure(out, {"sources": {"blueprint": None if blueprint is None else str(blueprint)}})
+                traj_png = trajectory_figure(out, {"sources": {"blueprint": None if blueprint is None else str(blueprint),
+                                                               "blueprint_scale": blueprint_scale}})
             comparisons, overlays = compares.finish(out, files, warnings)
             compare_s = time.perf_counter() - t_cmp
         finally:
@@ -448,6 +451,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
+        if blueprint_scale is not None:  # a plain-image blueprint: the report's trajectory figure reads it again
+            metrics["sources"]["blueprint_scale"] = blueprint_scale
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,
                              "peak_rss_mb_slam": {n: f.peak_rss_mb for n, f in feeds.items() if isinstance(f, RemoteFeed)}}
         metrics["timing"]["total_s"] = time.perf_counter() - t_start

@@ -72,7 +72,8 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
         try:
             from mapping.mapio import read_blueprint
 
-            g = read_blueprint(bp)
+            g = read_blueprint(bp, metrics["sources"].get("blueprint_scale"),
+                               metrics.get("config", {}).get("compare", {}).get("blueprint_dark", 0.5))
             walls = (g.data[::-1] >= 65).astype(float)
             x0, y0 = g.origin[0], g.origin[1]
             ext = (x0, x0 + g.width * g.resolution, y0, y0 + g.height * g.resolution)
@@ -104,6 +105,43 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
     return save_figure(fig, out / "trajectories.png")
 
 
+def _summary_panels(metrics: dict) -> list[str]:
+    """The maps summary.png shows: the KOS SLAM scan's and the laser's, those the run made."""
+    main = f"kos_{metrics.get('slam_scan', 'obstacle')}"
+    return [k for k in (main, "laser") if k in metrics.get("maps", {})]
+
+
+def summary_caption(metrics: dict) -> str:
+    """summary.png's caption, naming only the maps it shows (a laser-only log has no depth camera map)."""
+    kinds = ["kos" if k.startswith("kos") else "laser" for k in _summary_panels(metrics)]
+    if kinds == ["kos", "laser"]:
+        return "the depth camera's (KOS) map and the laser's, each from its own SLAM"
+    return "the depth camera's (KOS) map, from its SLAM" if kinds == ["kos"] else "the laser's map, from its SLAM"
+
+
+def map_warnings(metrics: dict) -> list[str]:
+    """Maps without a single occupied cell: a KOS level the camera never reaches draws every cell it passes as free
+    floor, which says nothing about that height (the console and the report say so beside the run's warnings)."""
+    out = []
+    max_depth = metrics.get("config", {}).get("depth", {}).get("max_depth")
+    for name, mp in metrics.get("maps", {}).items():
+        if mp.get("occupied_cells") != 0 or not mp.get("known_cells"):
+            continue
+        kos = mp.get("source") == "kos"
+        what = f"the KOS level {mp.get('level')}" if kos and mp.get("level") != "obstacle" else mp.get("label", name)
+        out.append(f"map_{name}: {what} saw no obstacle in its {mp.get('scans')} scans, so its {mp['known_cells']} "
+                   f"known cells are all drawn free"
+                   + ("; check that the camera sees that height (its mount's height and pitch, its vertical field of "
+                      f"view, [depth] max_depth = {max_depth:g} m) or choose other [kos] levels"
+                      if kos and isinstance(max_depth, (int, float)) else ""))
+    return out
+
+
+def run_warnings(metrics: dict) -> list[str]:
+    """The run's warnings (metrics.json) and the maps' (map_warnings), each once."""
+    return list(dict.fromkeys(list(metrics.get("warnings", [])) + map_warnings(metrics)))
+
+
 def summary_figure(out: Path, metrics: dict, path: Path | None = None) -> Path | None:
     """summary.png: the KOS map and the laser map side by side (each with its trajectory), titled with their F1
     against the blueprint and their SLAM's ATE: the run at a glance."""
@@ -113,8 +151,7 @@ def summary_figure(out: Path, metrics: dict, path: Path | None = None) -> Path |
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    main = f"kos_{metrics.get('slam_scan', 'obstacle')}"
-    panels = [k for k in (main, "laser") if k in metrics.get("maps", {})]
+    panels = _summary_panels(metrics)
     if not panels:
         return None
     fig, axes = plt.subplots(len(panels), 1, figsize=(9, 4.4 * len(panels)), dpi=110, squeeze=False)
@@ -202,7 +239,9 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                     + (f", at most {fr['laser_rate_hz']:g} Hz" if fr["laser_rate_hz"] else "") + ") through SLAM")
     B.append(("p", f"Log: {log['path']} ({_f(log['duration_s'], 1)} s). " + "; ".join(what) + ". "
               + ("Ground truth: yes (ATE below). " if src["ground_truth"] else "No ground truth in the log. ")
-              + (f"Blueprint: {src['blueprint']}." if src["blueprint"] else "No blueprint given.")))
+              + (f"Blueprint: {src['blueprint']}" + (f" ({src['blueprint_scale']:g} m per pixel)."
+                                                        if src.get("blueprint_scale") else ".")
+                 if src["blueprint"] else "No blueprint given.")))
     h = headline(m)
     B.append(("h", 2, "Headline"))
     t = m["timing"]
@@ -228,8 +267,9 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
              _f(m["slam"][k].get("ate_odometry", {}).get("rmse"), 3, " m")] for k, v in h["ate"].items()]
     if rows:
         B.append(("table", ["trajectory", "ATE RMSE", "wheel odometry's ATE"], rows))
+    workers = _workers(m["table_5_5"]["workers"], src["kos"])
     B.append(("p", f"Whole run: {_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log = "
-                   f"{_f(t.get('realtime_factor'), 1)}× real time ({m['table_5_5']['workers']} worker process(es))."))
+                   f"{_f(t.get('realtime_factor'), 1)}× real time ({workers})."))
 
     # maps
     maps = m.get("maps", {})
@@ -240,7 +280,10 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
     order = sorted(maps, key=lambda k: (k != f"kos_{m['slam_scan']}", k != "laser", k))
     B.append(("images", [(out / Path(maps[k]["png"]).name,
                           f"{maps[k].get('label', k)} — {maps[k]['width']}×{maps[k]['height']} cells of "
-                          f"{maps[k]['resolution']:g} m, poses from the {maps[k].get('poses')} SLAM") for k in order]))
+                          f"{maps[k]['resolution']:g} m, poses from the {maps[k].get('poses')} SLAM"
+                          + (" — saw no obstacle: every known cell drawn free (see Warnings)"
+                             if maps[k].get("occupied_cells") == 0 and maps[k].get("known_cells") else ""))
+                         for k in order]))
 
     # overlays
     comps = m.get("comparisons", {})
@@ -319,17 +362,28 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          f"{_f(mem.get('peak_rss_mb_workers'), 0)} MB"
                          + "".join(f"; {n} SLAM process {_f(v, 0)} MB" for n, v in (mem.get("peak_rss_mb_slam") or {}).items())])
         B.append(("table", ["stage", "time"], rows))
-    warns = m.get("warnings", [])
+    warns = run_warnings(m)
     if warns:
         B.append(("h", 2, "Warnings"))
         B.append(("list", warns))
     B.append(("h", 2, "Files"))
+    mcap = (["KOS scans"] if src["kos"] else []) + (["laser scans"] if src["laser"] else []) \
+        + (["plane points"] if src["kos"] else [])
     B.append(("list", ["map_<name>.png / .pgm / .yaml: the maps", "trajectory_<source>.tum (TUM, for evo)"
-                       + (", ground_truth.tum" if src["ground_truth"] else ""),
-                       "stats.csv: per-frame Table 5.2 columns and timings", "kosmap.mcap: KOS scans, laser, plane "
-                       "points, /tf, paths and maps for Foxglove", "metrics.json: every number here",
-                       "config.toml: the effective configuration"]))
+                       + (", ground_truth.tum" if src["ground_truth"] else "")]
+              + (["stats.csv: per-frame Table 5.2 columns and timings"] if src["kos"] else [])
+              + [f"kosmap.mcap: {', '.join(mcap)}, /tf, paths and maps for Foxglove", "metrics.json: every number here",
+                 "config.toml: the effective configuration"]))
     return B
+
+
+def _workers(n: int, depth: bool) -> str:
+    """What the worker processes did: FSPF+ and KOS on the depth frames, or in a laser-only run the maps alone."""
+    if not n:
+        return "serial, in one process"
+    procs = f"{n} worker process{'es' if n != 1 else ''}"
+    return (f"{procs} for FSPF+, KOS, the maps and comparisons" if depth
+            else f"laser only: {procs} for the maps and comparisons")
 
 
 # ---- rendering --------------------------------------------------------------------------------------------------------
@@ -411,7 +465,7 @@ def write_report(out: str | Path, metrics: dict, frames_png: Path | None | bool 
     blocks = _sections(out, metrics, traj, frames)
     if summary is not None:  # the run at a glance, right under the headline numbers
         at = next((i for i, b in enumerate(blocks) if b[0] == "h" and b[2] == "Maps"), len(blocks))
-        blocks.insert(at, ("images", [(summary, "the depth camera's (KOS) map and the laser's, each from its own SLAM")]))
+        blocks.insert(at, ("images", [(summary, summary_caption(metrics))]))
     files = {}
     for name, text in (("report.md", _md(blocks, out)), ("report.html", _html(blocks))):
         p = out / name

@@ -68,7 +68,9 @@ class SlamResult:
 
     @property
     def realtime_factor(self) -> float:
-        t = self.timings.get("total", 0.0)
+        """Log seconds per second of SLAM: over the run's wall time (run_slam's "total"), else, where SLAM runs
+        beside the reading (`kosmap build`, which has no "total"), over the time of its own stages."""
+        t = self.timings.get("total") or sum(v for k, v in self.timings.items() if k != "read")
         return self.duration_s / t if t > 0 else float("inf")
 
 
@@ -296,9 +298,11 @@ class Slam:
         local = np.array(self.local, dtype=float).reshape(-1, 3)
         kos = np.array(self.key_of_scan, dtype=np.int64)
         poses = scan_poses(local, kos, key_local, self.graph.est)
-        return SlamResult(np.array(self.stamps, dtype=np.int64), poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
+        stamps = np.array(self.stamps, dtype=np.int64)
+        return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
+                          duration_s=float(stamps[-1] - stamps[0]) * 1e-9 if len(stamps) else 0.0,
                           loop_stats=dataclasses.asdict(self.loops.stats), imu_stats=dict(self.imu_stats),
                           heading_stats=None if self.heading is None else dataclasses.asdict(self.heading.stats),
                           warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]

@@ -153,7 +153,8 @@ def test_every_command_that_writes_a_folder_refuses_an_unusable_out_first(laser_
     f.write_text("mine")
     grid = OccupancyGrid(np.full((20, 20), -1, np.int8), 0.05, (0.0, 0.0, 0.0))
     a = write_map_server(grid, tmp_path / "a.yaml", ".png")
-    for argv in (["scan", str(laser_log)], ["compare", str(a), str(a)], ["build", str(laser_log)]):
+    for argv in (["scan", str(laser_log)], ["compare", str(a), str(a)], ["build", str(laser_log)],
+                 ["slam", str(laser_log)], ["planes", str(laser_log)]):
         assert main(argv + ["--out", str(f / "sub")]) == 2, argv
         err = capsys.readouterr().err.strip()
         assert err == f"kosmap: error: --out {f / 'sub'}: {f} is a file, so no folder can be made in it; give another folder"

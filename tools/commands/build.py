@@ -8,12 +8,13 @@ from typing import Annotated, Optional
 
 import typer
 
+from frontend.errors import KosmapError
 from tools import options as O
 
 
 def print_headline(metrics: dict, out: Path) -> None:
     """The report's place and its headline numbers (what `kosmap build` and `kosmap demo` print)."""
-    from mapping.report import headline
+    from mapping.report import headline, run_warnings
 
     h = headline(metrics)
     if h["partial"]:
@@ -28,7 +29,7 @@ def print_headline(metrics: dict, out: Path) -> None:
         print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  {ate:.3f} m")
     t = metrics["timing"]
     print(f"  {t['total_s']:.1f} s for {t['log_s']:.1f} s of log: {t['realtime_factor']:.1f}× real time")
-    for w in metrics.get("warnings", []):
+    for w in run_warnings(metrics):  # the run's, and a map that saw no obstacle (a KOS level out of the camera's sight)
         print(f"warning: {w}", file=sys.stderr)
     print(f"report: {out / 'report.html'} (and report.md; maps, trajectories, metrics.json, kosmap.mcap in {out})")
 
@@ -36,9 +37,10 @@ def print_headline(metrics: dict, out: Path) -> None:
 def register(app: typer.Typer) -> None:
     @app.command()
     def build(
-        log: Annotated[Path, typer.Argument(help="Log: .mcap (ROS 2) or .bag (ROS 1) with depth images and/or a laser.")],
+        log: Annotated[Path, typer.Argument(help="Log: .mcap (ROS 2) or .bag (ROS 1) with depth images and/or a laser, or .clf (CARMEN: laser and odometry).")],
         out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (maps, trajectories, report, MCAP, metrics).")] = Path("build_out"),
-        blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Floor blueprint (map_server .yaml) to compare the maps with.")] = None,
+        blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Floor blueprint to compare the maps with: a map_server .yaml, or a plain image (walls = dark pixels) with --blueprint-scale.")] = None,
+        blueprint_scale: Annotated[Optional[float], typer.Option("--blueprint-scale", help="Metres per pixel of a plain-image blueprint (as for `kosmap compare`).")] = None,
         workers: Annotated[Optional[int], typer.Option("--workers", "-j", help="Processes for FSPF+ and KOS (default: every core; 0 = serial). The maps are the same.")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
@@ -51,9 +53,11 @@ def register(app: typer.Typer) -> None:
         from mapping.pipeline import build as run
 
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
+        if blueprint_scale is not None and blueprint is None:
+            raise KosmapError("--blueprint-scale belongs to --blueprint (a plain image's metres per pixel)")
         show = not quiet and sys.stderr.isatty()
         res = run(log, out, cfg, blueprint=blueprint, workers=workers, progress=show,
-                  say=None if quiet else (lambda m: print(m, file=sys.stderr)))
+                  say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale)
         if not quiet:
             print_headline(res.metrics, out)
         if res.partial:

@@ -28,8 +28,10 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
+        from mapping.outdir import check_out
         from mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
+        out = check_out(out)  # before the run, not after it
         cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic,
                             imu_topic=imu_topic)
         if relations is not None and not relations.is_file():
@@ -81,4 +83,6 @@ def register(app: typer.Typer) -> None:
             print("estimated: " + ", ".join(cal))
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)
-        print(f"wrote {', '.join(p.name for p in paths.values())} to {out}")
+        names = [n for k, p in paths.items()  # map.yaml's image, map.pgm, is written beside it
+                 for n in ((p.with_suffix(".pgm").name, p.name) if k == "map_yaml" else (p.name,))]
+        print(f"wrote {', '.join(names)} to {out}")
