@@ -268,7 +268,7 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
     if rows:
         B.append(("table", ["trajectory", "ATE RMSE", "wheel odometry's ATE"], rows))
     workers = _workers(m["table_5_5"]["workers"], src["kos"])
-    B.append(("p", f"Whole run: {_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log = "
+    B.append(("p", f"Whole run, up to this report: {_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log = "
                    f"{_f(t.get('realtime_factor'), 1)}× real time ({workers})."))
 
     # maps
