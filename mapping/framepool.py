@@ -40,6 +40,7 @@ from frontend.fspf import FspfConfig, warmup
 from frontend.kos import Bearings, KosConfig
 from frontend.kosframe import KosFrame, kos_frame
 from frontend.records import DepthFrame
+from mapping.childproc import die_with_parent
 
 _CONFIGS: tuple | None = None  # (fspf, depth, kos) configs of this worker process
 _SLOTS: mmap.mmap | None = None  # the shared depth slots (inherited at fork)
@@ -47,9 +48,11 @@ _PIPES: list | None = None  # (this end, worker's end) of each worker's frame pi
 SLOT_BYTES = 8 << 20  # one slot: up to 8 MB (a 1920×1080 uint16 image is 4 MB); larger frames are pickled
 
 
-def _init_worker(configs: tuple) -> None:
-    """Worker start: Ctrl-C is the parent's to handle (it writes the partial outputs); load the numba kernels."""
+def _init_worker(configs: tuple, parent_pid: int) -> None:
+    """Worker start: Ctrl-C is the parent's to handle (it writes the partial outputs); die with the parent (a
+    build killed outright must not leave its workers waiting for ever); load the numba kernels."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent_pid)
     global _CONFIGS
     _CONFIGS = configs
     warmup(configs[0].method)
@@ -165,7 +168,7 @@ class FramePool:
             self._slots = _SLOTS = mmap.mmap(-1, self._n_slots * SLOT_BYTES)
             _PIPES = [ctx.Pipe() for _ in range(self.workers)]  # before the fork: every worker inherits them
         self._ex = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_init_worker,
-                                       initargs=(self.configs,))
+                                       initargs=(self.configs, os.getpid()))
         # start every worker now, before the caller starts threads (a progress bar): forking a process
         # with other threads running can copy a held lock
         for f in [self._ex.submit(_ping) for _ in range(self.workers)]:

@@ -28,6 +28,8 @@ def check_out(out: str | Path, option: str = "--out") -> Path:
     if not str(out).strip():
         raise OutputError(f"{option} is empty; give a folder for the results")
     out = Path(out)
+    if out.is_symlink() and not out.exists():
+        raise OutputError(f"{option} {out} is a link to {os.readlink(out)}, which does not exist; give a folder")
     if out.exists() and not out.is_dir():
         raise OutputError(f"{option} {out} is a file; give a folder for the results")
     p = out.absolute()
@@ -41,10 +43,12 @@ def check_out(out: str | Path, option: str = "--out") -> Path:
 
 
 def previous_outputs(out: Path) -> set[str] | None:
-    """Names of the files the previous build wrote in `out` (its manifest); for a folder of a build from before
-    manifests (metrics.json says "kosmap": "build") every file matching `patterns` counts; None: no build's folder."""
+    """Names of the files the previous build wrote in `out` (its manifest); {"*"} (every file matching the build's
+    names counts) for a build that was killed while running (its manifest says so) or one from before manifests
+    (metrics.json says "kosmap": "build"); None: no build's folder."""
     try:
-        return set(json.loads((out / MANIFEST).read_text())["files"])
+        listed = json.loads((out / MANIFEST).read_text())
+        return {"*"} if listed.get("in_progress") else set(listed["files"])
     except FileNotFoundError:
         pass
     except (OSError, ValueError, KeyError, TypeError):
@@ -56,22 +60,31 @@ def previous_outputs(out: Path) -> set[str] | None:
     return {"*"} if legacy else None
 
 
-def claim(out: Path, patterns: tuple[str, ...]) -> None:
+def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = ()) -> None:
     """Make `out` ready for a build that writes files matching `patterns`: the previous build's files there are
     removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed build
-    (its temporary folder, `.partial` files); a matching file no build wrote stops the run, untouched."""
+    (its temporary folder, `.partial` files); a matching file no build wrote, or one the run reads (`inputs`: the
+    log, --config, the blueprint), stops the run, untouched. The manifest then says a build is in progress, so
+    that the files of one killed outright are the next build's to replace."""
     out.mkdir(parents=True, exist_ok=True)
-    prev = previous_outputs(out)
     present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
+    here = out.resolve()
+    for x in inputs:
+        if x is not None and Path(x).resolve().parent == here and Path(x).name in present:
+            raise OutputError(f"{x} is read by this build but is one of the files it writes in --out {out}; copy it "
+                              f"elsewhere or give another folder")
+    prev = previous_outputs(out)
     ours = set(present) if prev == {"*"} else (prev or set())
     theirs = [n for n in present if n not in ours]
     if theirs:
         more = f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
+        them = "it" if len(theirs) == 1 else "them"
         raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which this build would overwrite but no "
-                          f"kosmap build wrote; move them or give another folder")
+                          f"kosmap build wrote (another kosmap command's folder? a build needs its own); move {them} or "
+                          f"give another folder")
+    _write_manifest(out, {"kosmap": "build", "in_progress": True})
     for name in present:
         (out / name).unlink(missing_ok=True)
-    (out / MANIFEST).unlink(missing_ok=True)
     for p in out.glob(SPILL_PREFIX + "*"):
         shutil.rmtree(p, ignore_errors=True)
     for pat in patterns:
@@ -93,7 +106,11 @@ def discard(out: Path, patterns: tuple[str, ...]) -> None:
 def record(out: Path, patterns: tuple[str, ...]) -> Path:
     """List the files of this build (every match of `patterns`) in the manifest, written whole or not at all."""
     names = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file()})
+    return _write_manifest(out, {"kosmap": "build", "files": names})
+
+
+def _write_manifest(out: Path, doc: dict) -> Path:
     tmp = out / (MANIFEST + ".partial")
-    tmp.write_text(json.dumps({"kosmap": "build", "files": names}, indent=1) + "\n")
+    tmp.write_text(json.dumps(doc, indent=1) + "\n")
     os.replace(tmp, out / MANIFEST)
     return out / MANIFEST

@@ -45,6 +45,7 @@ from frontend.logs import detect_topics, open_log
 from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
 from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
 from mapping.config import Config, config_dict, write_config
+from mapping.childproc import die_with_parent
 from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
 from mapping.grid import GridBuilder, OccupancyGrid
 from mapping.jsonsafe import json_safe
@@ -324,14 +325,15 @@ def _planar(tf: Transform | None) -> np.ndarray:
 def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, blueprint: str | Path | None = None,
           workers: int | None = None, progress: bool = False, on_progress: Callable[[Progress], None] | None = None,
           report: bool = True, say: Callable[[str], None] | None = None,
-          blueprint_scale: float | None = None) -> BuildResult:
+          blueprint_scale: float | None = None, reads: tuple = ()) -> BuildResult:
     """Build every map of `log` into `out_dir` (see the module doc); returns the metrics and the files written.
 
     `workers`: processes for the per-frame stage (None = every core, 0 = serial in this process; the maps are
     the same). `progress`: a rich progress bar on stderr. `on_progress`: called after each frame (or laser scan
     in a log without depth); raising KeyboardInterrupt there stops the run like Ctrl-C. `say`: where phase
     messages go (None = nowhere). `blueprint_scale`: metres per pixel of a plain-image blueprint (None for a
-    map_server YAML, which has its resolution).
+    map_server YAML, which has its resolution). `reads`: other files the run reads (--config): like the log and
+    the blueprint, never replaced by an output in `out_dir`.
     """
     from mapping.slam import Slam
 
@@ -371,7 +373,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
 
     kos_gcfg = kos_graph_config(cfg)  # the same graph as `kosmap slam --source kos` (KOS_GRAPH, then [build] kos_graph)
 
-    claim(out, BUILD_FILES)  # the previous build's files go; a file of the user's under one of our names stops here
+    bp_files = () if blueprint is None else (Path(blueprint), *(Path(blueprint).with_suffix(x) for x in (".png", ".pgm")))
+    # the previous build's files go; a file of the user's, or one this run reads, under one of our names stops here
+    claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
     spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
     warnings: list[str] = []
     pool = None
@@ -717,6 +721,12 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
 
 # ---- pass 2: grids from the optimised poses, the MCAP ------------------------------------------------------------
 
+def _init_job_worker(parent_pid: int) -> None:
+    """A grid or comparison worker of a log without depth: Ctrl-C is the parent's; it dies with the parent."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    die_with_parent(parent_pid)
+
+
 class _Jobs:
     """Independent jobs (one grid, one comparison) in `workers` forked processes (the frame pool's `executor` when
     given: not shut down here), or here when workers = 0; results in submission order. The jobs read the spill
@@ -731,8 +741,8 @@ class _Jobs:
             from concurrent.futures import ProcessPoolExecutor
 
             ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else None
-            self.ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=signal.signal,
-                                          initargs=(signal.SIGINT, signal.SIG_IGN))
+            self.ex = ProcessPoolExecutor(workers, mp_context=ctx, initializer=_init_job_worker,
+                                          initargs=(os.getpid(),))
 
     def submit(self, fn, *args):
         if self.ex is None:

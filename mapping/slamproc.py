@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from frontend.errors import KosmapError
+from mapping.childproc import die_with_parent, set_name
 from mapping.framepool import peak_rss_mb, sendable_error
 
 
@@ -29,20 +30,10 @@ class SlamProcessError(KosmapError):
 
 
 def _as_child(name: str, parent_pid: int) -> None:
-    """Linux (elsewhere nothing): show the process as `name` in top, ps and /proc/PID/comm (tools/bench_pipeline.py
-    tells the SLAM processes from the frame workers by it), and die with the parent. The pipe cannot tell: the
-    frame workers, forked later, hold copies of its parent end, so a parent killed outright (out of memory) would
-    leave the child waiting for ever."""
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None)
-        libc.prctl(15, name.encode()[:15], 0, 0, 0)  # PR_SET_NAME
-        libc.prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
-    except (OSError, AttributeError):
-        pass
-    if os.getppid() != parent_pid:  # the parent died before the line above
-        os._exit(1)
+    """Show the process as `name` (tools/bench_pipeline.py tells the SLAM processes from the frame workers by it),
+    and die with the parent: the pipe cannot tell (mapping/childproc.py)."""
+    set_name(name)
+    die_with_parent(parent_pid)
 
 
 _WHEEL, _GYRO, _ADVANCE, _OP = 0, 1, 2, 3  # the kinds of recorded call

@@ -9,6 +9,13 @@ import typer
 
 from mapping.config import Config, load_config, parse_override
 
+def out_folder(text: str | Path) -> Path:
+    """--out as typed: an empty one is refused (as a Path it would silently be the current folder)."""
+    if not str(text).strip():
+        raise typer.BadParameter("is empty; give a folder for the results (. for the current one)")
+    return Path(text)
+
+
 ConfigOpt = Annotated[Optional[Path], typer.Option("--config", "-c", help="TOML config file (a section per stage).")]
 SetOpt = Annotated[Optional[list[str]], typer.Option("--set", "-s", help="Override a config value: section.key=value (repeatable).")]
 DepthTopicOpt = Annotated[Optional[list[str]], typer.Option("--depth-topic", help="Depth image topic (repeat for several cameras).")]

@@ -2,8 +2,10 @@
 uint16 millimetre frames and float32 metre frames, over more frames than the ring has slots."""
 
 import dataclasses
+import sys
 
 import numpy as np
+import pytest
 
 from frontend.camera import DepthConfig, config_mount
 from frontend.depthstream import DepthItem
@@ -156,3 +158,34 @@ def test_an_error_that_does_not_unpickle_comes_back_as_its_text_and_close_never_
         pool.submit(it, bearings)
     pool.close(cancel=True)  # returns: the loops end at their pipes' EOF
     assert pool.executor is None
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_the_workers_die_with_a_build_killed_outright():
+    """SIGKILL (the out-of-memory killer) on the main process: its frame workers must not wait for ever."""
+    import signal
+    import subprocess
+    import time
+    from pathlib import Path
+
+    script = ("import time\nfrom frontend.camera import DepthConfig\nfrom frontend.fspf import FspfConfig\n"
+              "from frontend.kos import KosConfig\nfrom mapping.framepool import FramePool\n"
+              "pool = FramePool(FspfConfig(), DepthConfig(), KosConfig(), workers=2)\nprint('ready', flush=True)\n"
+              "time.sleep(60)\n")
+    p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
+                         cwd=Path(__file__).resolve().parents[2])
+    try:
+        assert p.stdout.readline().strip() == "ready"
+        kids = [int(x) for t in Path(f"/proc/{p.pid}/task").iterdir()
+                for x in (t / "children").read_text().split()]
+        assert len(kids) == 2
+        p.send_signal(signal.SIGKILL)
+        p.wait()
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and any(Path(f"/proc/{k}").exists() for k in kids):
+            time.sleep(0.05)
+        alive = [k for k in kids if Path(f"/proc/{k}").exists()
+                 and "Z" not in (Path(f"/proc/{k}/stat").read_text().split()[2:3] or [""])[0]]
+        assert not alive, f"workers {alive} outlived their killed parent"
+    finally:
+        p.kill()

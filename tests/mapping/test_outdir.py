@@ -75,7 +75,7 @@ def test_claim_removes_the_previous_builds_files_and_a_killed_builds_leftovers_o
         claim(tmp_path, BUILD_FILES)  # map_mine.png matches map_*.png but the manifest does not list it
     (tmp_path / "map_mine.png").rename(tmp_path / "mine.png")
     claim(tmp_path, BUILD_FILES)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.png", "notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "mine.png", "notes.txt"]  # (saying: running)
 
 
 def test_a_folder_of_a_build_before_manifests_is_still_a_builds(tmp_path):
@@ -83,7 +83,7 @@ def test_a_folder_of_a_build_before_manifests_is_still_a_builds(tmp_path):
     (tmp_path / "trajectory_kos.tum").write_text("")
     (tmp_path / "notes.txt").write_text("mine")
     claim(tmp_path, BUILD_FILES)
-    assert [p.name for p in tmp_path.iterdir()] == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "notes.txt"]
 
 
 @pytest.mark.slow
@@ -159,3 +159,37 @@ def test_every_command_that_writes_a_folder_refuses_an_unusable_out_first(laser_
         err = capsys.readouterr().err.strip()
         assert err == f"kosmap: error: --out {f / 'sub'}: {f} is a file, so no folder can be made in it; give another folder"
     assert f.read_text() == "mine"
+
+
+def test_the_files_of_a_build_killed_outright_are_the_next_builds(tmp_path):
+    (tmp_path / "notes.txt").write_text("mine")
+    claim(tmp_path, BUILD_FILES)  # a build starts: its manifest says it is running
+    for name in ("config.toml", "trajectory_kos.tum", "stats.csv"):  # … writes these, then SIGKILL
+        (tmp_path / name).write_text(name)
+    claim(tmp_path, BUILD_FILES)  # the next build takes them as a build's
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "notes.txt"]
+
+
+def test_a_file_the_build_reads_is_never_one_it_replaces(tmp_path):
+    cfg = tmp_path / "config.toml"
+    cfg.write_text("[build]\n")
+    (tmp_path / MANIFEST).write_text(json.dumps({"kosmap": "build", "files": ["config.toml"]}))
+    with pytest.raises(OutputError, match=r"config.toml is read by this build but is one of the files it writes"):
+        claim(tmp_path, BUILD_FILES, inputs=(tmp_path / "sub" / ".." / "config.toml",))
+    assert cfg.read_text() == "[build]\n"
+
+
+def test_out_given_empty_or_as_a_dangling_link_is_refused(laser_log, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["build", str(laser_log), "--out", ""]) == 2
+    assert "is empty" in capsys.readouterr().err and list(tmp_path.iterdir()) == []
+    (tmp_path / "dl").symlink_to(tmp_path / "gone")
+    with pytest.raises(OutputError, match="is a link to .*gone, which does not exist"):
+        check_out(tmp_path / "dl")
+
+
+def test_another_commands_folder_is_named_in_the_refusal(tmp_path):
+    (tmp_path / "metrics.json").write_text(json.dumps({"source": "laser"}))  # as `kosmap slam` writes it
+    (tmp_path / "config.toml").write_text("")
+    with pytest.raises(OutputError, match=r"holds config.toml, metrics.json, .*another kosmap command's folder.*move them"):
+        claim(tmp_path, BUILD_FILES)

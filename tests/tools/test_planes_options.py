@@ -275,3 +275,16 @@ def test_depth_scale_on_a_float_log_says_it_does_not_apply(capsys, tmp_path):
         in stdout.splitlines()
     z, px = _z_at_pixels(tmp_path / "o")
     assert np.allclose(z, metres[px[:, 0], px[:, 1]], atol=1e-4)
+
+
+def test_a_shorter_rerun_leaves_no_frames_of_the_longer_one(capsys, tmp_path, plain_folder):
+    folder, _ = plain_folder
+    out = tmp_path / "o"
+    code, _, err = run(capsys, "planes", folder, "--out", out, "--max-frames", "2", "--figures", "2", "--save-depth")
+    assert code == 0, err
+    (out / "planes" / "mine.txt").write_text("mine")
+    code, _, err = run(capsys, "planes", folder, "--out", out, "--max-frames", "1", "--figures", "1", "--save-depth")
+    assert code == 0, err
+    assert sorted(p.name for p in (out / "planes").iterdir()) == ["000000.npz", "mine.txt"]
+    assert [p.name for p in (out / "depth").iterdir()] == ["000000.png"]
+    assert json.loads((out / "summary.json").read_text())["frames"] == 1

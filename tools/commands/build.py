@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def build(
         log: Annotated[Path, typer.Argument(help="Log: .mcap (ROS 2) or .bag (ROS 1) with depth images and/or a laser, or .clf (CARMEN: laser and odometry).")],
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (maps, trajectories, report, MCAP, metrics).")] = Path("build_out"),
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Output folder (maps, trajectories, report, MCAP, metrics).")] = Path("build_out"),
         blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Floor blueprint to compare the maps with: a map_server .yaml, or a plain image (walls = dark pixels) with --blueprint-scale.")] = None,
         blueprint_scale: Annotated[Optional[float], typer.Option("--blueprint-scale", help="Metres per pixel of a plain-image blueprint (as for `kosmap compare`).")] = None,
         workers: Annotated[Optional[int], typer.Option("--workers", "-j", help="Processes for FSPF+ and KOS (default: every core; 0 = serial). The maps are the same.")] = None,
@@ -57,7 +57,8 @@ def register(app: typer.Typer) -> None:
             raise KosmapError("--blueprint-scale belongs to --blueprint (a plain image's metres per pixel)")
         show = not quiet and sys.stderr.isatty()
         res = run(log, out, cfg, blueprint=blueprint, workers=workers, progress=show,
-                  say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale)
+                  say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale,
+                  reads=() if config is None else (config,))
         if not quiet:
             print_headline(res.metrics, out)
         if res.partial:

@@ -55,7 +55,7 @@ def register(app: typer.Typer) -> None:
     def compare(
         a: Annotated[Path, typer.Argument(help="Map under test: a map_server .yaml.")],
         b: Annotated[Optional[Path], typer.Argument(help="Reference map: a map_server .yaml.")] = None,
-        out: Annotated[Path, typer.Option("--out", "-o", help="Directory for compare.json, compare.md, overlay.png, config.toml.")] = Path("compare_out"),
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Directory for compare.json, compare.md, overlay.png, config.toml.")] = Path("compare_out"),
         blueprint: Annotated[Optional[Path], typer.Option("--blueprint", help="Reference blueprint: a map_server .yaml or a plain image (walls = dark pixels).")] = None,
         blueprint_scale: Annotated[Optional[float], typer.Option("--blueprint-scale", help="Metres per pixel of a plain-image blueprint.")] = None,
         no_align: Annotated[bool, typer.Option("--no-align", help="The frames already agree: score without aligning.")] = False,

@@ -19,6 +19,7 @@ from typing import Annotated, Optional
 
 import typer
 
+from tools import options as O
 from tools.data import REPO
 
 DEMO_WORLD = "office"
@@ -100,7 +101,7 @@ def demo_log(cache: Path | None = None, fresh: bool = False, quiet: bool = False
 def register(app: typer.Typer) -> None:
     @app.command()
     def demo(
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder of the build.")] = Path("demo_out"),
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Output folder of the build.")] = Path("demo_out"),
         workers: Annotated[Optional[int], typer.Option("--workers", "-j", help="Processes for FSPF+ and KOS (default: every core).")] = None,
         fresh: Annotated[bool, typer.Option("--fresh", help="Simulate the log again even if it is cached.")] = False,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="Only the headline.")] = False,

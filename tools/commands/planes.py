@@ -7,6 +7,7 @@ import csv
 import itertools
 import json
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Generator, Iterator
@@ -285,10 +286,16 @@ def _stage(out: Path) -> tuple[Path, Path | None]:
 
 
 def _commit(stage: Path, out: Path) -> None:
-    """Move the run's files into `out`, replacing a previous run's of the same name; summary.json goes last."""
+    """Move the run's files into `out`, replacing a previous run's of the same name; summary.json goes last. In the
+    per-frame folders (planes/, depth/, figures/) a previous run's frames this run did not write go too: a longer
+    run's 000002.npz must not sit beside a summary of one frame."""
     for p in sorted(stage.iterdir(), key=lambda p: (p.name == "summary.json", p.name)):
         dest = out / p.name
         if p.is_dir() and dest.is_dir():
+            new = {q.name for q in p.iterdir()}
+            for old in dest.iterdir():
+                if old.name not in new and re.fullmatch(r"\d{6}\.(npz|png)", old.name) and old.is_file():
+                    old.unlink()
             for q in p.iterdir():
                 os.replace(q, dest / q.name)
         else:
@@ -419,7 +426,7 @@ def register(app: typer.Typer) -> None:
     def planes(
         source: Annotated[Path, typer.Argument(help="Log (.mcap, .bag), a folder of depth PNGs with a camera file, "
                                                      "or a folder of ../shared/data/depth datasets.")],
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")],
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Output folder.")],
         method: Annotated[Optional[str], typer.Option("--method", help="fspf+ (thesis, default) or fspf (Biswas).")] = None,
         save_depth: Annotated[bool, typer.Option("--save-depth", help="Write the processed depth (plane points only) as 16-bit PNG (mm).")] = False,
         camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy[, depth_scale]); replaces the intrinsics of the folder, dataset or log.")] = None,

@@ -15,7 +15,7 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def scan(
         log: Annotated[Path, typer.Argument(help="Log with depth images: .mcap (ROS 2) or .bag (ROS 1).")],
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder.")] = Path("kos_out"),
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Output folder.")] = Path("kos_out"),
         levels: Annotated[Optional[str], typer.Option(help="Scan heights above the floor, m, comma-separated (e.g. 0.3,0.75,1.5).")] = None,
         band: Annotated[Optional[float], typer.Option(help="Half height of each level's band, m (thesis: 0.1).")] = None,
         source: Annotated[Optional[str], typer.Option(help="'planes' (FSPF+ points, the thesis) or 'depth' (every valid point).")] = None,

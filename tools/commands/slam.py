@@ -16,7 +16,7 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def slam(
         log: Annotated[Path, typer.Argument(help="Log file: .mcap (ROS 2), .bag (ROS 1) or .clf (CARMEN).")],
-        out: Annotated[Path, typer.Option("--out", "-o", help="Output folder (trajectory, graph, map, metrics, config).")],
+        out: Annotated[Path, typer.Option("--out", "-o", parser=O.out_folder, help="Output folder (trajectory, graph, map, metrics, config).")],
         source: Annotated[str, typer.Option("--source", help="Scans to map from: laser, or kos (the depth camera's KOS scan named by [build] slam_scan).")] = "laser",
         relations: Annotated[Optional[Path], typer.Option("--relations", help="Kümmerle .relations file to score against.")] = None,
         ground_truth: Annotated[Optional[Path], typer.Option("--ground-truth", help="TUM ground-truth trajectory to score against.")] = None,
