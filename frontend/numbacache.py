@@ -5,6 +5,7 @@ cached kernel at all, so a per-user folder in the temporary directory is named i
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -33,8 +34,25 @@ def numba_cache_dir(environ: dict | os._Environ = os.environ, package: Path = _P
     return os.path.join(tempfile.gettempdir(), f"kosmap-numba-cache-{uid}")
 
 
+def private_dir(path: str) -> str:
+    """`path` made (0700) or found as a folder of this user's that no one else may write, else a fresh one: numba
+    unpickles what its cache folder holds, so a folder another user made first in the shared temporary directory
+    must not be used."""
+    try:
+        os.mkdir(path, 0o700)
+    except FileExistsError:
+        pass
+    except OSError:
+        return tempfile.mkdtemp(prefix="kosmap-numba-cache-")
+    st = os.lstat(path)
+    uid = os.getuid() if hasattr(os, "getuid") else st.st_uid
+    if stat.S_ISDIR(st.st_mode) and st.st_uid == uid and not st.st_mode & 0o022:
+        return path
+    return tempfile.mkdtemp(prefix="kosmap-numba-cache-")
+
+
 def ensure() -> None:
     """Set NUMBA_CACHE_DIR when numba would find nowhere to cache; before numba is first imported."""
     d = numba_cache_dir()
     if d is not None:
-        os.environ["NUMBA_CACHE_DIR"] = d
+        os.environ["NUMBA_CACHE_DIR"] = private_dir(d)

@@ -28,3 +28,20 @@ def test_an_install_the_user_cannot_write_gets_a_temp_folder(tmp_path, monkeypat
     else:
         assert d is not None and "kosmap-numba-cache" in d
     assert numba_cache_dir({"HOME": str(ro)}, ro / "pkg") is not None  # a home it cannot write
+
+
+def test_the_temp_folder_is_private_and_one_another_user_could_have_planted_is_not_used(tmp_path):
+    from frontend.numbacache import private_dir
+
+    mine = tmp_path / "kosmap-numba-cache-1"
+    assert private_dir(str(mine)) == str(mine) and (mine.stat().st_mode & 0o777) == 0o700
+    assert private_dir(str(mine)) == str(mine)  # found again: still ours
+    planted = tmp_path / "kosmap-numba-cache-2"
+    planted.mkdir()
+    planted.chmod(0o777)  # anyone may write in it: not used
+    other = private_dir(str(planted))
+    assert other != str(planted) and "kosmap-numba-cache-" in other and (os.stat(other).st_mode & 0o777) == 0o700
+    link = tmp_path / "kosmap-numba-cache-3"
+    link.symlink_to(mine)
+    assert private_dir(str(link)) != str(link)  # a link (to anywhere) is not a folder of ours
+    os.rmdir(other)
