@@ -351,9 +351,10 @@ def main() -> None:
     previous = {_key(r): r for r in old.get("runs", [])}  # the last results, for the ratios
     previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
     other_cpu = old.get("machine", {}).get("cpu")
-    if other_cpu != cpu_model():  # another kind of machine: its times are no baseline for this one's
-        print(f"the previous results were measured on another machine ({other_cpu}): no ratios to them", flush=True)
-        previous = {}
+    if old and other_cpu != cpu_model():  # another kind of machine: its times are no baseline for this one's
+        print(f"the previous results were measured on another machine ({other_cpu or 'processor not recorded'}): "
+              f"no ratios to them, and --merge keeps none of them", flush=True)
+        previous, old = {}, {}
     base = worktree(a.against) if a.against else None
     comparisons = []
     for minutes in a.minutes:
