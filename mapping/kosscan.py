@@ -262,16 +262,31 @@ def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: li
 def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,
              progress: bool = True) -> dict:
     """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-
-    from frontend.logs.writer import McapWriter
-    from mapping.outdir import check_out
+    from mapping.outdir import check_out, claim, discard, record
 
     out = check_out(out)
     with open_log(log_path) as log:  # refuse a log without depth before writing anything
         if not detect_topics(log.info().types(), cfg.topics).depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
-    out.mkdir(parents=True, exist_ok=True)
+    claim(out, SCAN_FILES, inputs=(log_path,), command="scan")  # the last scan's files go (its figures too), not the user's
+    try:
+        summary = _scan_into(log_path, out, cfg, figures, limit, progress)
+    except BaseException:  # interrupted or failed: nothing left that looks like a result
+        discard(out, SCAN_FILES)
+        raise
+    record(out, SCAN_FILES, command="scan")
+    return summary
+
+
+SCAN_FILES = ("config.toml", "kos.mcap", "scan_points.csv", "kos_top_*.png", "summary.json")  # what a scan writes
+
+
+def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int | None, progress: bool) -> dict:
+    """run_scan's work, into a folder claimed for it."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from frontend.logs.writer import McapWriter
+
     write_config(cfg, out / "config.toml")
     run = ScanRun()
     levels = [b[0] for b in cfg.kos.bands() if b[0] != OBSTACLE]

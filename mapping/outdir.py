@@ -1,8 +1,9 @@
-"""Output folders: checked before any work, and a build's own files told apart from the user's.
+"""Output folders: checked before any work, and a run's own files told apart from the user's.
 
-A build replaces the files of the previous build in its folder, and only those: each build lists what it wrote in
-a manifest (MANIFEST); a file that a build would write under the same name but that no build wrote there is the
-user's, and the build refuses to start rather than delete or overwrite it.
+A run (build, slam, scan, compare) replaces the files of the previous run of the same command in its folder, and
+only those: each run lists what it wrote in a manifest (MANIFEST); a file that it would write under the same name
+but that no such run wrote there is the user's (or another command's), and the run refuses to start rather than
+delete or overwrite it.
 """
 
 from __future__ import annotations
@@ -42,25 +43,28 @@ def check_out(out: str | Path, option: str = "--out") -> Path:
     return out
 
 
-def previous_outputs(out: Path) -> set[str] | None:
-    """Names of the files the previous build wrote in `out` (its manifest); {"*"} (every file matching the build's
-    names counts) for a build that was killed while running (its manifest says so) or one from before manifests
-    (metrics.json says "kosmap": "build"); None: no build's folder."""
+def previous_outputs(out: Path, command: str = "build") -> set[str] | None:
+    """Names of the files the previous run of `command` wrote in `out` (its manifest); {"*"} (every file matching
+    its names counts) for a run that was killed while running (its manifest says so) or a build from before
+    manifests (metrics.json says "kosmap": "build"); None: no such run's folder. OutputError: another command's."""
     try:
         listed = json.loads((out / MANIFEST).read_text())
+        if listed.get("kosmap", "build") != command:
+            raise OutputError(f"--out {out} holds the results of `kosmap {listed.get('kosmap')}`; give `kosmap "
+                              f"{command}` a folder of its own")
         return {"*"} if listed.get("in_progress") else set(listed["files"])
     except FileNotFoundError:
         pass
     except (OSError, ValueError, KeyError, TypeError):
         return None  # a damaged manifest proves nothing: what it would list is treated as the user's
     try:
-        legacy = json.loads((out / "metrics.json").read_text()).get("kosmap") == "build"
+        legacy = command == "build" and json.loads((out / "metrics.json").read_text()).get("kosmap") == "build"
     except (OSError, ValueError, AttributeError):
         legacy = False
     return {"*"} if legacy else None
 
 
-def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = ()) -> None:
+def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> None:
     """Make `out` ready for a build that writes files matching `patterns`: the previous build's files there are
     removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed build
     (its temporary folder, `.partial` files); a matching file no build wrote, or one the run reads (`inputs`: the
@@ -71,18 +75,18 @@ def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = ()) -> None:
     here = out.resolve()
     for x in inputs:
         if x is not None and Path(x).resolve().parent == here and Path(x).name in present:
-            raise OutputError(f"{x} is read by this build but is one of the files it writes in --out {out}; copy it "
+            raise OutputError(f"{x} is read by this run but is one of the files it writes in --out {out}; copy it "
                               f"elsewhere or give another folder")
-    prev = previous_outputs(out)
+    prev = previous_outputs(out, command) if present else None
     ours = set(present) if prev == {"*"} else (prev or set())
     theirs = [n for n in present if n not in ours]
     if theirs:
         more = f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
         them = "it" if len(theirs) == 1 else "them"
-        raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which this build would overwrite but no "
-                          f"kosmap build wrote (another kosmap command's folder? a build needs its own); move {them} or "
+        raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which `kosmap {command}` would overwrite "
+                          f"but did not write (another kosmap command's folder? each needs its own); move {them} or "
                           f"give another folder")
-    _write_manifest(out, {"kosmap": "build", "in_progress": True})
+    _write_manifest(out, {"kosmap": command, "in_progress": True})
     for name in present:
         (out / name).unlink(missing_ok=True)
     for p in out.glob(SPILL_PREFIX + "*"):
@@ -103,10 +107,10 @@ def discard(out: Path, patterns: tuple[str, ...]) -> None:
     (out / MANIFEST).unlink(missing_ok=True)
 
 
-def record(out: Path, patterns: tuple[str, ...]) -> Path:
-    """List the files of this build (every match of `patterns`) in the manifest, written whole or not at all."""
+def record(out: Path, patterns: tuple[str, ...], command: str = "build") -> Path:
+    """List the files of this run (every match of `patterns`) in the manifest, written whole or not at all."""
     names = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file()})
-    return _write_manifest(out, {"kosmap": "build", "files": names})
+    return _write_manifest(out, {"kosmap": command, "files": names})
 
 
 def _write_manifest(out: Path, doc: dict) -> Path:

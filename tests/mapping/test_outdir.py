@@ -59,7 +59,7 @@ def test_claim_refuses_to_replace_files_no_build_wrote(tmp_path):
     (tmp_path / "map_office.png").write_bytes(b"png")
     (tmp_path / "notes.txt").write_text("mine")
     before = _snapshot(tmp_path)
-    with pytest.raises(OutputError, match=r"holds ground_truth.tum, map_office.png, which this build would overwrite"):
+    with pytest.raises(OutputError, match=r"holds ground_truth.tum, map_office.png, which `kosmap build` would overwrite"):
         claim(tmp_path, BUILD_FILES)
     assert _snapshot(tmp_path) == before
 
@@ -174,7 +174,7 @@ def test_a_file_the_build_reads_is_never_one_it_replaces(tmp_path):
     cfg = tmp_path / "config.toml"
     cfg.write_text("[build]\n")
     (tmp_path / MANIFEST).write_text(json.dumps({"kosmap": "build", "files": ["config.toml"]}))
-    with pytest.raises(OutputError, match=r"config.toml is read by this build but is one of the files it writes"):
+    with pytest.raises(OutputError, match=r"config.toml is read by this run but is one of the files it writes"):
         claim(tmp_path, BUILD_FILES, inputs=(tmp_path / "sub" / ".." / "config.toml",))
     assert cfg.read_text() == "[build]\n"
 
@@ -193,3 +193,28 @@ def test_another_commands_folder_is_named_in_the_refusal(tmp_path):
     (tmp_path / "config.toml").write_text("")
     with pytest.raises(OutputError, match=r"holds config.toml, metrics.json, .*another kosmap command's folder.*move them"):
         claim(tmp_path, BUILD_FILES)
+
+
+def test_slam_scan_and_compare_keep_to_their_own_files_and_folders(laser_log, tmp_path, capsys):
+    from tools.commands.compare import COMPARE_FILES
+    from tools.commands.slam import SLAM_FILES
+
+    out = tmp_path / "slam"
+    out.mkdir()
+    (out / "map.png").write_bytes(b"my own picture")
+    assert main(["slam", str(laser_log), "--out", str(out)]) == 2  # would overwrite the user's map.png
+    assert "map.png, which `kosmap slam` would overwrite" in capsys.readouterr().err
+    assert (out / "map.png").read_bytes() == b"my own picture" and len(list(out.iterdir())) == 1
+    (out / "map.png").unlink()
+    assert main(["slam", str(laser_log), "--out", str(out)]) == 0
+    assert main(["slam", str(laser_log), "--out", str(out)]) == 0  # its own earlier files: replaced
+    assert set(json.loads((out / MANIFEST).read_text())["files"]) == set(SLAM_FILES)
+    assert main(["compare", str(out / "map.yaml"), str(out / "map.yaml"), "--out", str(out)]) == 2  # slam's folder
+    assert "holds the results of `kosmap slam`" in capsys.readouterr().err
+
+    cmp = tmp_path / "cmp"
+    assert main(["compare", str(out / "map.yaml"), str(out / "map.yaml"), "--out", str(cmp)]) == 0
+    assert json.loads((cmp / "compare.json").read_text())["tolerances"]["0.10"]["f1"] == pytest.approx(1.0)
+    assert set(json.loads((cmp / MANIFEST).read_text())["files"]) == set(COMPARE_FILES)
+    assert main(["build", str(laser_log), "--out", str(cmp), "-j", "0", "--set", SETS[0]]) == 2
+    assert "holds the results of `kosmap compare`" in capsys.readouterr().err

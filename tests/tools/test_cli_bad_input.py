@@ -151,3 +151,15 @@ def test_info_json_reports_topics_and_intrinsics(capsys, tmp_path):
     assert s["detected"]["camera_info"][DEPTH] == "/kinect2/sd/camera_info"
     cam = s["cameras"][DEPTH]
     assert cam["width"] == 64 and cam["fov_h_deg"] == pytest.approx(70.6, abs=1.5)
+
+
+def test_a_path_the_system_refuses_is_one_line_not_a_traceback(capsys, tmp_path):
+    f = tmp_path / "afile.yaml"
+    f.write_text("x")
+    code = main(["simulate", "room", "--out", str(f / "x.mcap"), "--duration", "1"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and err.count("\n") == 0, err
+    assert err == f"kosmap: error: {f}: File exists; check the path and its permissions" or "Not a directory" in err
+    assert f.read_text() == "x"
+    assert main(["simulate", "room", "--out", str(tmp_path / "inf.mcap"), "--duration", "inf"]) == 2
+    assert "duration = inf is out of range" in capsys.readouterr().err and not (tmp_path / "inf.mcap").exists()

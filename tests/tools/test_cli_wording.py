@@ -115,4 +115,4 @@ def test_slam_lists_every_file_it_wrote(ring, tmp_path, capsys):
     names = line[len("wrote "):].rsplit(" to ", 1)[0].split(", ")
     assert names == ["trajectory.tum", "keyframes.tum", "graph.g2o", "metrics.json", "map.png", "map.pgm", "map.yaml",
                      "config.toml"]
-    assert sorted(p.name for p in out.iterdir()) == sorted(names)
+    assert sorted(p.name for p in out.iterdir()) == sorted(names + [".kosmap-outputs"])

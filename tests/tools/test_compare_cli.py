@@ -37,7 +37,8 @@ def test_compare_two_maps_writes_everything(capsys, tmp_path, maps):
     code, stdout, err = run(capsys, "compare", a, b, "--out", out)
     assert code == 0, err
     assert "| 0.10 m |" in stdout and "precision" in stdout
-    assert sorted(p.name for p in out.iterdir()) == ["compare.json", "compare.md", "config.toml", "overlay.png"]
+    assert sorted(p.name for p in out.iterdir()) == [".kosmap-outputs", "compare.json", "compare.md", "config.toml",
+                                                    "overlay.png"]  # (the list of what it wrote, first)
     m = json.loads((out / "compare.json").read_text())
     assert m["alignment"]["yaw_deg"] == pytest.approx(100.0, abs=0.5)
     assert np.hypot(m["alignment"]["x"] - 1.0, m["alignment"]["y"] - 0.5) < 0.1

@@ -41,6 +41,8 @@ def register(app: typer.Typer) -> None:
             sets.append(f'kos.source="{source}"')
         if limit is not None and limit < 1:
             raise KosmapError(f"--limit {limit} must be at least 1")
+        if figures < 0:
+            raise KosmapError(f"--figures {figures} must be 0 or more")
         cfg = O.make_config(config, sets, depth_topic, info_topic, scan_topic, odom_topic)
         s = run_scan(log, out, cfg, figures=figures, limit=limit)
         fill = ", ".join(f"{k} {100 * v:.0f} %" for k, v in s["filled_fraction"].items())

@@ -82,7 +82,7 @@ def register(app: typer.Typer) -> None:
         world: Annotated[str, typer.Argument(help="A bundled world (office, room) or a world YAML file.")],
         out: Annotated[Optional[Path], typer.Option("--out", "-o", help="Output log (.mcap).")] = None,
         seed: Annotated[Optional[int], typer.Option("--seed", help="Random seed (same seed → identical file).")] = None,
-        duration: Annotated[Optional[float], typer.Option("--duration", help="Seconds to simulate (default: the whole path).")] = None,
+        duration: Annotated[Optional[float], typer.Option("--duration", help="Seconds to simulate (default or 0: the whole path; past its end the robot stands still).")] = None,
         path: Annotated[Optional[Path], typer.Option("--path", help="Waypoints file (YAML or 'x y' lines), or the name of one of the world's paths (office: survey), instead of its default path.")] = None,
         rear_camera: Annotated[bool, typer.Option("--rear-camera", help="Add a rear-facing Kinect.")] = False,
         no_laser: Annotated[bool, typer.Option("--no-laser", help="Leave the laser scanner out.")] = False,
@@ -135,6 +135,8 @@ def register(app: typer.Typer) -> None:
                 print(f"blueprint: {yp} (+ {yp.with_suffix('.png').name}), {resolution} m cells")
         if out is None:
             return
+        if out.exists() and not quiet:  # (replaced only once the new log is whole: it is written to LOG.partial)
+            print(f"note: {out} exists; the new log replaces it when it is done", file=sys.stderr)
         show = not quiet and sys.stderr.isatty()
         if show:
             from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn

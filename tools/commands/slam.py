@@ -12,6 +12,10 @@ import typer
 from tools import options as O
 
 
+SLAM_FILES = ("trajectory.tum", "keyframes.tum", "graph.g2o", "metrics.json", "map.png", "map.pgm", "map.yaml",
+              "config.toml")  # what `kosmap slam` writes (mapping/slam.py save_run)
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def slam(
@@ -28,7 +32,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
-        from mapping.outdir import check_out
+        from mapping.outdir import check_out, claim, discard, record
         from mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
         out = check_out(out)  # before the run, not after it
@@ -38,24 +42,30 @@ def register(app: typer.Typer) -> None:
             from backend.metrics import MetricsError
 
             raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
-        show = not quiet and sys.stderr.isatty()
-        if show:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+        claim(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam")
+        try:
+            show = not quiet and sys.stderr.isatty()
+            if show:
+                from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-            prog = Progress(TextColumn("slam"), BarColumn(), TextColumn("{task.fields[t]:.0f}/{task.total:.0f} s of log"),
-                            TimeRemainingColumn(), transient=True)
-            with prog:
-                task = prog.add_task("slam", total=1.0, t=0.0)
+                prog = Progress(TextColumn("slam"), BarColumn(), TextColumn("{task.fields[t]:.0f}/{task.total:.0f} s of log"),
+                                TimeRemainingColumn(), transient=True)
+                with prog:
+                    task = prog.add_task("slam", total=1.0, t=0.0)
 
-                def tick(done: float, total: float) -> None:
-                    prog.update(task, total=max(total, 1e-9), completed=done, t=done)
+                    def tick(done: float, total: float) -> None:
+                        prog.update(task, total=max(total, 1e-9), completed=done, t=done)
 
-                result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
-        else:
-            result = run_slam(log, cfg, source, keep_scans=not no_map, workers=workers)
-        metrics = evaluate(result, relations, ground_truth)
-        grid = None if no_map else build_map(result, cfg.grid)
-        paths = save_run(result, out, cfg, metrics, grid)
+                    result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
+            else:
+                result = run_slam(log, cfg, source, keep_scans=not no_map, workers=workers)
+            metrics = evaluate(result, relations, ground_truth)
+            grid = None if no_map else build_map(result, cfg.grid)
+            paths = save_run(result, out, cfg, metrics, grid)
+        except BaseException:  # failed or interrupted: nothing left that looks like a result
+            discard(out, SLAM_FILES)
+            raise
+        record(out, SLAM_FILES, command="slam")
         if quiet:
             return
         t = result.timings

@@ -24,7 +24,7 @@ class SimConfig(StageConfig):
 
     section = "simulate"
     seed: int = param(0, lo=0, doc="random seed: the same seed gives a byte-identical log")
-    duration: float = param(0.0, lo=0.0, doc="seconds to simulate; 0 = until the path ends", unit="s")
+    duration: float = param(0.0, lo=0.0, hi=7 * 86400.0, doc="seconds to simulate; 0 = until the path ends", unit="s")
     start_time: float = param(1_700_000_000.0, lo=0.0, doc="stamp of the first message (epoch)", unit="s")
     # motion
     speed_min: float = param(0.3, **_POS, doc="slowest cruise speed of a leg", unit="m/s")
