@@ -65,11 +65,11 @@ def previous_outputs(out: Path, command: str = "build") -> set[str] | None:
 
 
 def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> None:
-    """Make `out` ready for a build that writes files matching `patterns`: the previous build's files there are
-    removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed build
-    (its temporary folder, `.partial` files); a matching file no build wrote, or one the run reads (`inputs`: the
-    log, --config, the blueprint), stops the run, untouched. The manifest then says a build is in progress, so
-    that the files of one killed outright are the next build's to replace."""
+    """Make `out` ready for a run of `command` that writes files matching `patterns`: the previous run's files
+    there are removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed
+    build (its temporary folder, `.partial` files); a matching file no such run wrote, or one this run reads
+    (`inputs`: the log, --config, a blueprint), stops it, untouched. The manifest then says a run is in progress,
+    so that the files of one killed outright are the next run's to replace."""
     out.mkdir(parents=True, exist_ok=True)
     present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
     here = out.resolve()
@@ -97,7 +97,7 @@ def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str
 
 
 def discard(out: Path, patterns: tuple[str, ...]) -> None:
-    """Remove what a failed build wrote (after `claim`, every file matching `patterns` is this run's): no
+    """Remove what a failed run wrote (after `claim`, every file matching `patterns` is this run's): no
     half-written result is left looking valid."""
     for pat in patterns:
         for p in out.glob(pat):
