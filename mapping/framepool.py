@@ -99,6 +99,7 @@ def _frame_loop(k: int) -> int:
         mine.close()
         if j != k:
             theirs.close()
+    conn.send(("ready", k))  # the parent waits for this from every loop (FramePool._start)
     bearings = None
     while True:
         try:
@@ -182,6 +183,16 @@ class FramePool:
                 self._bearings.append(None)
             # each worker blocks in its loop, so the k-th task goes to a worker of its own
             self._loops = [self._ex.submit(_frame_loop, k) for k in range(self.workers)]
+            # and every loop is running, its copies of the other pipes' ends closed, before a frame is sent: a loop
+            # still queued when a close cancels it would leave its worker holding a copy of another loop's parent
+            # end, and that loop would never see its pipe's end (a hang seen in CI, when one worker had answered
+            # both pings while the other was still starting)
+            for k, c in enumerate(self._conns):
+                try:
+                    ready = c.recv()
+                except EOFError:
+                    raise KosmapError(f"frame worker {k} died while starting (out of memory?)") from None
+                assert ready == ("ready", k), ready
 
     def submit(self, item: DepthItem, bearings: Bearings, keep_planes: bool = False, tag: Any = None,
                cloud_points: int = 0) -> None:
