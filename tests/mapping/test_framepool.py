@@ -189,3 +189,46 @@ def test_the_workers_die_with_a_build_killed_outright():
         assert not alive, f"workers {alive} outlived their killed parent"
     finally:
         p.kill()
+
+
+def _slow_second_init(configs, parent_pid, count):
+    """The pool's worker start, the second worker's half a second late: the first then answers both pings."""
+    import time
+
+    import mapping.framepool as fp
+
+    with count.get_lock():
+        count.value += 1
+        n = count.value
+    if n == 2:
+        time.sleep(0.5)
+    fp._init_worker(configs, parent_pid)
+
+
+def test_every_frame_loop_runs_before_the_pool_is_used_so_close_never_hangs(monkeypatch):
+    """A loop still queued when close(cancel=True) cancels it would leave its worker holding another loop's pipe
+    end, and that loop would wait for ever (a hang once seen in CI)."""
+    import multiprocessing as mp
+    import threading
+    from concurrent.futures import ProcessPoolExecutor
+
+    import mapping.framepool as fp
+
+    count = mp.get_context("fork").Value("i", 0)
+
+    class SlowStart(ProcessPoolExecutor):
+        def __init__(self, n, mp_context=None, initializer=None, initargs=()):
+            super().__init__(n, mp_context=mp_context, initializer=_slow_second_init, initargs=(*initargs, count))
+
+    monkeypatch.setattr(fp, "ProcessPoolExecutor", SlowStart)
+    items = _items(3)
+    fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
+    bearings = bearings_for([(items[0].camera, items[0].mount)], kos.angle_increment_deg)
+    pool = FramePool(fspf, depth, kos, 2, in_flight=4)
+    assert all(f.running() for f in pool._loops)
+    for it in items:
+        pool.submit(it, bearings)
+    t = threading.Thread(target=pool.close, kwargs={"cancel": True}, daemon=True)
+    t.start()
+    t.join(20)
+    assert not t.is_alive(), "close(cancel=True) hung"
