@@ -9,12 +9,11 @@ import signal
 
 import pytest
 
-from frontend.logs import open_log
-from frontend.logs.writer import McapWriter
 from frontend.records import CameraModel, DepthFrame
 from mapping.config import load_config
 from mapping.outdir import MANIFEST, OutputError, check_out, claim
 from mapping.pipeline import BUILD_FILES, build
+from tests.frontend.synthetic_log import copy_log
 from tools.cli import main
 
 SETS = ["build.depth_rate=0"]
@@ -28,12 +27,7 @@ def laser_log(tmp_path_factory):
     d = tmp_path_factory.mktemp("outdir")
     full = d / "room.mcap"
     simulate(load_world("room"), SimConfig(seed=2, duration=2.5), full)
-    log = d / "laser.mcap"
-    with open_log(full) as src, McapWriter(log) as w:
-        for rec in src.read(src.info().types()):
-            if not isinstance(rec, (DepthFrame, CameraModel)):
-                w.write(rec, rec.topic)
-    return log
+    return copy_log(full, d / "laser.mcap", lambda r: not isinstance(r, (DepthFrame, CameraModel)))
 
 
 def _snapshot(d):

@@ -20,17 +20,10 @@ from frontend.records import CameraModel, DepthFrame, Scan
 from mapping.config import load_config
 from mapping.mapio import read_map_server, write_map_server
 from mapping.pipeline import Progress, build
+from tests.frontend.synthetic_log import copy_log
 
 # lean settings for seconds-long logs: the room's 11 m loop from its start, a cloud every 0.5 s in the MCAP
 SETS = ["build.mcap_planes_period=0.5", "build.depth_rate=0"]  # every frame of the 30 Hz camera (the default takes 10 Hz)
-
-
-def _copy(src, dst, keep) -> None:
-    """A log holding the records of `src` for which keep(record) holds."""
-    with open_log(src) as log, McapWriter(dst) as w:
-        for rec in log.read(log.info().types()):
-            if keep(rec):
-                w.write(rec, rec.topic)
 
 
 @pytest.fixture(scope="module")
@@ -43,11 +36,11 @@ def logs(tmp_path_factory):
     simulate(world, SimConfig(seed=4, duration=2.5), full)
     bp = write_map_server(world.blueprint(0.05), d / "room_bp.yaml", ".png")
     laser_only = d / "laser_only.mcap"
-    _copy(full, laser_only, lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+    copy_log(full, laser_only, lambda r: not isinstance(r, (DepthFrame, CameraModel)))
     depth_only = d / "depth_only.mcap"
-    _copy(full, depth_only, lambda r: not isinstance(r, Scan))
+    copy_log(full, depth_only, lambda r: not isinstance(r, Scan))
     neither = d / "neither.mcap"
-    _copy(full, neither, lambda r: not isinstance(r, (DepthFrame, CameraModel, Scan)))
+    copy_log(full, neither, lambda r: not isinstance(r, (DepthFrame, CameraModel, Scan)))
     return {"full": full, "laser_only": laser_only, "depth_only": depth_only, "neither": neither, "blueprint": bp}
 
 

@@ -9,8 +9,8 @@ import math
 
 import pytest
 
-from frontend.logs.writer import McapWriter
 from mapping.report import map_warnings, summary_caption
+from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
 from tools.cli import main
 
@@ -19,10 +19,7 @@ from tools.cli import main
 def ring(tmp_path_factory):
     """A laser-only log (the synthetic ring: laser, wheel odometry, ground truth; no depth camera)."""
     log = make_log(seed=1, laps=1)
-    path = tmp_path_factory.mktemp("ring") / "ring.mcap"
-    with McapWriter(path) as w:
-        for rec in records(log):
-            w.write(rec)
+    path = write_mcap(records(log), tmp_path_factory.mktemp("ring") / "ring.mcap")
     return path, (log.stamps_ns[-1] - log.stamps_ns[0]) * 1e-9
 
 

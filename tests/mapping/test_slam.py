@@ -91,11 +91,8 @@ def test_log_file_end_to_end(log, tmp_path):
 
 def test_kos_source_needs_depth_frames(log, tmp_path):
     from frontend.errors import TopicError
-    from frontend.logs.writer import McapWriter
+    from tests.frontend.synthetic_log import write_mcap
 
-    path = tmp_path / "laser_only.mcap"
-    with McapWriter(path) as w:
-        for rec in records(log):
-            w.write(rec)
+    path = write_mcap(records(log), tmp_path / "laser_only.mcap")
     with pytest.raises(TopicError, match="no depth image topic; --source kos needs one"):
         run_slam(path, source="kos")

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from backend.trajio import read_g2o, read_tum
-from frontend.logs.writer import McapWriter
+from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
 from tools.cli import main
 
@@ -16,11 +16,7 @@ from tools.cli import main
 @pytest.fixture(scope="module")
 def ring_log(tmp_path_factory):
     log = make_log(seed=1, laps=1)
-    path = tmp_path_factory.mktemp("slam") / "ring.mcap"
-    with McapWriter(path) as w:
-        for rec in records(log):
-            w.write(rec)
-    return path, log
+    return write_mcap(records(log), tmp_path_factory.mktemp("slam") / "ring.mcap"), log
 
 
 def test_slam_writes_every_output(ring_log, tmp_path, capsys):

@@ -7,19 +7,14 @@ import json
 
 import pytest
 
-from frontend.logs.writer import McapWriter
+from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
 from tools.cli import main
 
 
 @pytest.fixture(scope="module")
 def ring(tmp_path_factory):
-    d = tmp_path_factory.mktemp("wording")
-    path = d / "ring.mcap"
-    with McapWriter(path) as w:
-        for rec in records(make_log(seed=1, laps=1)):
-            w.write(rec)
-    return path
+    return write_mcap(records(make_log(seed=1, laps=1)), tmp_path_factory.mktemp("wording") / "ring.mcap")
 
 
 @pytest.fixture(scope="module")
