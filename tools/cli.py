@@ -26,12 +26,6 @@ for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name)
 def _on_sigterm(signum, _frame):
     """SIGTERM (`kill`, a supervisor) stops a run like an error: its `finally` blocks remove what it half wrote
     (without this, Python dies at once and leaves a build's temporary folder behind)."""
-    import multiprocessing
-
-    if multiprocessing.parent_process() is not None:  # a worker the reset below missed: the default action
-        signal.signal(signum, signal.SIG_DFL)
-        os.kill(os.getpid(), signum)
-        return
     print("kosmap: terminated", file=sys.stderr)
     raise SystemExit(128 + signum)
 
@@ -39,11 +33,8 @@ def _on_sigterm(signum, _frame):
 def _default_in_child() -> None:
     """A forked worker or SLAM process dies at SIGTERM at once: a Python handler would wait for the C call it runs
     (a gtsam solve, a numba kernel) to end before it could act."""
-    if signal.getsignal(signal.SIGTERM) is _on_sigterm:
-        try:
-            signal.signal(signal.SIGTERM, signal.SIG_DFL)
-        except ValueError:  # (forked from a thread that is not the main one: nothing to reset there)
-            pass
+    if signal.getsignal(signal.SIGTERM) is _on_sigterm:  # (a child forked from any thread is its main thread)
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
 os.register_at_fork(after_in_child=_default_in_child)
