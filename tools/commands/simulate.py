@@ -11,6 +11,7 @@ from typing import Annotated, Optional
 import typer
 
 from frontend.errors import ConfigError
+from tools.progress import seconds_bar
 
 
 def _sim_config(config: Path | None, sets: list[str] | None, **flags):
@@ -137,17 +138,8 @@ def register(app: typer.Typer) -> None:
             return
         if out.exists() and not quiet:  # (replaced only once the new log is whole: it is written to LOG.partial)
             print(f"note: {out} exists; the new log replaces it when it is done", file=sys.stderr)
-        show = not quiet and sys.stderr.isatty()
-        if show:
-            from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-            prog = Progress(TextColumn("simulating"), BarColumn(), TextColumn("{task.fields[t]:.1f} s"),
-                            TimeRemainingColumn(), transient=True)
-            with prog:
-                task = prog.add_task("sim", total=1.0, t=0.0)
-                summary = run(w, cfg, out, way, progress=lambda t, T: prog.update(task, completed=t / T, t=t))
-        else:
-            summary = run(w, cfg, out, way)
+        with seconds_bar("simulating", "{task.fields[t]:.1f} s", quiet) as tick:
+            summary = run(w, cfg, out, way, progress=tick)
         side = _write_sidecar(out, world, cfg, summary)
         if not quiet:
             print(f"log: {out} ({summary['bytes'] / 1e6:.1f} MB), world {summary['world']}, seed {summary['seed']}")

@@ -10,7 +10,7 @@ from typing import Annotated, Optional
 import typer
 
 from tools import options as O
-
+from tools.progress import seconds_bar
 
 SLAM_FILES = ("trajectory.tum", "keyframes.tum", "graph.g2o", "metrics.json", "map.png", "map.pgm", "map.yaml",
               "config.toml")  # what `kosmap slam` writes (mapping/slam.py save_run)
@@ -44,21 +44,8 @@ def register(app: typer.Typer) -> None:
             raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
         claim(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam")
         try:
-            show = not quiet and sys.stderr.isatty()
-            if show:
-                from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-                prog = Progress(TextColumn("slam"), BarColumn(), TextColumn("{task.fields[t]:.0f}/{task.total:.0f} s of log"),
-                                TimeRemainingColumn(), transient=True)
-                with prog:
-                    task = prog.add_task("slam", total=1.0, t=0.0)
-
-                    def tick(done: float, total: float) -> None:
-                        prog.update(task, total=max(total, 1e-9), completed=done, t=done)
-
-                    result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
-            else:
-                result = run_slam(log, cfg, source, keep_scans=not no_map, workers=workers)
+            with seconds_bar("slam", "{task.fields[t]:.0f}/{task.total:.0f} s of log", quiet) as tick:
+                result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
             metrics = evaluate(result, relations, ground_truth)
             grid = None if no_map else build_map(result, cfg.grid)
             paths = save_run(result, out, cfg, metrics, grid)
