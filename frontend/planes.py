@@ -63,6 +63,12 @@ class FrameStats:
         return self._pct(self.outliers)
 
     @property
+    def unexamined_pct(self) -> float:
+        """The eligible pixels never examined (FSPF+ stops once fspf.analysed_fraction of them are, FSPF at n_max
+        points): with the four shares above, 100 %."""
+        return self._pct(self.remaining)
+
+    @property
     def eligible(self) -> int:
         return self.pixels - self.ineligible
 

@@ -238,10 +238,8 @@ def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) 
 
 
 def _shares(planes: Planes) -> dict:
-    """The frame's Table 5.2 columns plus the share of eligible pixels never examined (FSPF+ stops once
-    fspf.analysed_fraction of them are, FSPF at n_max points), so that the five shares add up to 100 %."""
-    st = planes.stats
-    return {**st.row(), "unexamined_pct": 100.0 * st.remaining / st.pixels if st.pixels else 0.0}
+    """The frame's Table 5.2 columns plus the share never examined, so that the five shares add up to 100 %."""
+    return {**planes.stats.row(), "unexamined_pct": planes.stats.unexamined_pct}
 
 
 def _summary_row(rows: list[dict]) -> dict:
