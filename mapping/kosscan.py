@@ -262,20 +262,14 @@ def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: li
 def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,
              progress: bool = True) -> dict:
     """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary."""
-    from mapping.outdir import check_out, claim, discard, record
+    from mapping.outdir import check_out, writing
 
     out = check_out(out)
     with open_log(log_path) as log:  # refuse a log without depth before writing anything
         if not detect_topics(log.info().types(), cfg.topics).depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
-    claim(out, SCAN_FILES, inputs=(log_path,), command="scan")  # the last scan's files go (its figures too), not the user's
-    try:
-        summary = _scan_into(log_path, out, cfg, figures, limit, progress)
-    except BaseException:  # interrupted or failed: nothing left that looks like a result
-        discard(out, SCAN_FILES)
-        raise
-    record(out, SCAN_FILES, command="scan")
-    return summary
+    with writing(out, SCAN_FILES, inputs=(log_path,), command="scan"):  # the last scan's files go, not the user's
+        return _scan_into(log_path, out, cfg, figures, limit, progress)
 
 
 SCAN_FILES = ("config.toml", "kos.mcap", "scan_points.csv", "kos_top_*.png", "summary.json")  # what a scan writes

@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from frontend.errors import KosmapError
@@ -94,6 +96,19 @@ def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str
     for pat in patterns:
         for p in out.glob(pat + ".partial"):
             p.unlink(missing_ok=True)
+
+
+@contextmanager
+def writing(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> Iterator[None]:
+    """A run of `command` writing into `out`: claimed first, its files listed when the body ends, removed when it
+    fails or is interrupted."""
+    claim(out, patterns, inputs, command)
+    try:
+        yield
+    except BaseException:
+        discard(out, patterns)
+        raise
+    record(out, patterns, command)
 
 
 def discard(out: Path, patterns: tuple[str, ...]) -> None:

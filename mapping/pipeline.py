@@ -380,7 +380,6 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     warnings: list[str] = []
     pool = None
     feeds: dict[str, SlamFeed | RemoteFeed] = {}
-    done = False
     try:
         files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
         # One set of worker processes for the whole build, forked now while this process is small: the frames in
@@ -473,11 +472,11 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             metrics["timing"]["report_s"] = time.perf_counter() - t_rep
             files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
         files["manifest"] = record(out, BUILD_FILES)
-        done = True
         return BuildResult(out, json_safe(metrics), files)
+    except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: no half-written result left looking valid
+        discard(out, BUILD_FILES)
+        raise
     finally:
-        if not done:  # failed, or stopped by a second Ctrl-C or SIGTERM: no half-written result left looking valid
-            discard(out, BUILD_FILES)
         for feed in feeds.values():
             feed.close()
         if pool is not None:

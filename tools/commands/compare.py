@@ -19,7 +19,7 @@ def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, bluep
     from mapping.compare import compare, metrics_markdown, overlay_picture
     from mapping.config import config_dict
     from mapping.mapio import _atomic_write_bytes, read_blueprint, read_map_server, write_png
-    from mapping.outdir import check_out, claim, discard, record
+    from mapping.outdir import check_out, writing
 
     if (b_path is None) == (blueprint is None):
         raise KosmapError("give exactly one reference: a second map (B.yaml) or --blueprint BP")
@@ -43,16 +43,11 @@ def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, bluep
     import tomli_w
 
     inputs = (a_path, a_path.with_suffix(".png"), a_path.with_suffix(".pgm"), b_path, blueprint)
-    claim(out, COMPARE_FILES, inputs=inputs, command="compare")  # the last comparison's files go, not the user's
-    try:
+    with writing(out, COMPARE_FILES, inputs=inputs, command="compare"):  # the last comparison's files go, not the user's
         _atomic_write_bytes(out / "compare.json", (json.dumps(metrics, indent=2) + "\n").encode())
         _atomic_write_bytes(out / "compare.md", md.encode())
         write_png(overlay, out / "overlay.png")
         _atomic_write_bytes(out / "config.toml", ("# kosmap effective configuration\n" + tomli_w.dumps(config_dict(cfg))).encode())
-    except BaseException:
-        discard(out, COMPARE_FILES)
-        raise
-    record(out, COMPARE_FILES, command="compare")
     return {"metrics": metrics, "markdown": md}
 
 

@@ -32,7 +32,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
-        from mapping.outdir import check_out, claim, discard, record
+        from mapping.outdir import check_out, writing
         from mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
         out = check_out(out)  # before the run, not after it
@@ -42,17 +42,12 @@ def register(app: typer.Typer) -> None:
             from backend.metrics import MetricsError
 
             raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
-        claim(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam")
-        try:
+        with writing(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam"):
             with seconds_bar("slam", "{task.fields[t]:.0f}/{task.total:.0f} s of log", quiet) as tick:
                 result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
             metrics = evaluate(result, relations, ground_truth)
             grid = None if no_map else build_map(result, cfg.grid)
             paths = save_run(result, out, cfg, metrics, grid)
-        except BaseException:  # failed or interrupted: nothing left that looks like a result
-            discard(out, SLAM_FILES)
-            raise
-        record(out, SLAM_FILES, command="slam")
         if quiet:
             return
         t = result.timings
