@@ -4,14 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from frontend.records import (
-    CameraModel,
-    DepthFrame,
-    Odometry,
-    Scan,
-    Transform,
-    Transforms,
-)
+from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transform, Transforms
 
 DEPTH = "/kinect2/sd/image_depth_rect"
 INFO = "/kinect2/sd/camera_info"
