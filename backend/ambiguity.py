@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from frontend.matcher import branch_and_bound, branch_and_bound_excluding
+from kosmap.frontend.matcher import branch_and_bound, branch_and_bound_excluding
 
 
 def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_window: float, min_score: float,
@@ -27,7 +27,7 @@ def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_w
     would reject the match (the smaller the window of scores, the more the search prunes); None: no rival search.
 
     Returns (pose or None, best score, rival score or 0.0 when none beats the floor)."""
-    from frontend.matcher import rotated_cells
+    from kosmap.frontend.matcher import rotated_cells
 
     f = grids.field
     res = f.resolution

@@ -23,8 +23,8 @@ from pathlib import Path
 import gtsam
 import numpy as np
 
-from frontend import se2
-from frontend.params import StageConfig, param
+from kosmap.frontend import se2
+from kosmap.frontend.params import StageConfig, param
 
 
 @dataclass
@@ -272,7 +272,7 @@ class PoseGraph:
 
     def gyro_sigma(self, dt: float, bias_estimated: bool) -> float:
         """σ of a gyro yaw increment over dt: N²·Δt + (σ_b·Δt)² (when the bias is not a variable) + floor²."""
-        from backend.imu import yaw_sigma
+        from kosmap.backend.imu import yaw_sigma
 
         c = self.cfg
         return yaw_sigma(dt, math.radians(c.gyro_noise_density_deg), 0.0 if bias_estimated else math.radians(c.gyro_bias_sigma_deg_s),
@@ -490,7 +490,7 @@ class PoseGraph:
     # ---- export -----------------------------------------------------------------------------------------------------
     def write_g2o(self, path: str | Path) -> Path:
         """VERTEX_SE2 / EDGE_SE2 text (g2o's format; information = upper triangle of Σ⁻¹)."""
-        from backend.trajio import write_g2o
+        from kosmap.backend.trajio import write_g2o
 
         return write_g2o(path, self.est, [(e.a, e.b, e.measurement, e.sigmas if e.cov is None else e.cov, e.kind)
                                           for e in self.edges if e.kind not in ("prior", "heading")])

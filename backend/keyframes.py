@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend import se2
+from kosmap.frontend import se2
 
 
 @dataclass

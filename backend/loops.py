@@ -27,13 +27,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from backend.ambiguity import search_two_peaks, translation_information
-from backend.graph import GraphConfig, PoseGraph
-from backend.keyframes import Keyframe
-from frontend import se2
-from frontend.likelihood import LikelihoodField
-from frontend.matcher import SearchGrids, gauss_newton, inlier_fraction
-from frontend.odometry import voxel_filter
+from kosmap.backend.ambiguity import search_two_peaks, translation_information
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.keyframes import Keyframe
+from kosmap.frontend import se2
+from kosmap.frontend.likelihood import LikelihoodField
+from kosmap.frontend.matcher import SearchGrids, gauss_newton, inlier_fraction
+from kosmap.frontend.odometry import voxel_filter
 
 NARROW_COVERAGE = 0.4  # a scan whose returns cover less than this share of 10° bearing sectors (144°) is narrow
 

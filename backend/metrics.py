@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend import se2
-from frontend.errors import KosmapError
+from kosmap.frontend import se2
+from kosmap.frontend.errors import KosmapError
 
 
 class MetricsError(KosmapError):

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.errors import KosmapError
+from kosmap.frontend.errors import KosmapError
 
 
 class TrajectoryError(KosmapError):

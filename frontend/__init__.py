@@ -1,5 +1,5 @@
 """Per-frame sensor work: logs, depth to 3D, plane filtering, the Kinect Obstacle Scan, scan-matching odometry."""
 
-from frontend import numbacache
+from kosmap.frontend import numbacache
 
 numbacache.ensure()  # before any module of ours imports numba

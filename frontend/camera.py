@@ -7,8 +7,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from frontend.params import StageConfig, param
-from frontend.records import CameraModel, Transform, Transforms
+from kosmap.frontend.params import StageConfig, param
+from kosmap.frontend.records import CameraModel, Transform, Transforms
 
 
 @dataclass
@@ -25,7 +25,7 @@ class DepthConfig(StageConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         if self.max_depth <= self.min_depth:
             raise ConfigError(f"config [depth] max_depth = {self.max_depth} must be greater than min_depth = {self.min_depth}")

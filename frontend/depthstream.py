@@ -10,9 +10,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend.camera import DepthConfig, camera_for, camera_mount
-from frontend.logs.topics import DetectedTopics
-from frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from kosmap.frontend.camera import DepthConfig, camera_for, camera_mount
+from kosmap.frontend.logs.topics import DetectedTopics
+from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
 
 
 @dataclass

@@ -36,11 +36,11 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from frontend.camera import DepthConfig, camera_axes, depth_constraints
-from frontend.params import StageConfig, param
-from frontend.planes import (PLANE_CLASSES, FrameStats, Planes, fit_plane, merge_planes, moments_from_sums,
+from kosmap.frontend.camera import DepthConfig, camera_axes, depth_constraints
+from kosmap.frontend.params import StageConfig, param
+from kosmap.frontend.planes import (PLANE_CLASSES, FrameStats, Planes, fit_plane, merge_planes, moments_from_sums,
                              ransac_plane, rectify)
-from frontend.records import CameraModel, Transform
+from kosmap.frontend.records import CameraModel, Transform
 
 __all__ = ["FspfConfig", "PLANE_CLASSES", "filter_planes", "fspf_plus", "fspf", "frame_seed", "warmup"]
 
@@ -90,7 +90,7 @@ class FspfConfig(StageConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         if self.slanted_max_deg < self.slanted_min_deg:
             raise ConfigError(f"config [fspf] slanted_max_deg = {self.slanted_max_deg} must be ≥ slanted_min_deg = {self.slanted_min_deg}")

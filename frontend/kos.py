@@ -23,8 +23,8 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from frontend.params import StageConfig, param
-from frontend.records import CameraModel, Scan, Transform
+from kosmap.frontend.params import StageConfig, param
+from kosmap.frontend.records import CameraModel, Scan, Transform
 
 OBSTACLE = "obstacle"
 FUSED = "fused"
@@ -45,7 +45,7 @@ class KosConfig(StageConfig):
 
     def __post_init__(self) -> None:
         super().__post_init__()
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         if self.obstacle_max <= self.obstacle_min:
             raise ConfigError(f"config [kos] obstacle_max = {self.obstacle_max} must be above obstacle_min = {self.obstacle_min}")
@@ -54,7 +54,7 @@ class KosConfig(StageConfig):
     def _check_levels(self) -> None:
         """Each level once, its band (level ± band) between obstacle_min and obstacle_max: below obstacle_min lies
         the floor, and a band the camera never reaches gives a map of nothing but free cells."""
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         lo, hi = self.obstacle_min + self.band, self.obstacle_max - self.band
         eps = 1e-9  # 0.15 − 0.1 < 0.05 in floats

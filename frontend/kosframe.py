@@ -11,11 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend.camera import DepthConfig, depth_constraints
-from frontend.depthstream import DepthItem
-from frontend.fspf import FspfConfig, filter_planes, frame_seed
-from frontend.kos import Bearings, KosAccumulator, KosConfig
-from frontend.planes import FrameStats, Planes
+from kosmap.frontend.camera import DepthConfig, depth_constraints
+from kosmap.frontend.depthstream import DepthItem
+from kosmap.frontend.fspf import FspfConfig, filter_planes, frame_seed
+from kosmap.frontend.kos import Bearings, KosAccumulator, KosConfig
+from kosmap.frontend.planes import FrameStats, Planes
 
 
 @dataclass

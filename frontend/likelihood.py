@@ -129,7 +129,7 @@ class LikelihoodField:
 
     def score(self, pose, points: np.ndarray) -> float:
         """Mean field value at the points (N×2, scan frame) placed at `pose`."""
-        from frontend.matcher import mean_score
+        from kosmap.frontend.matcher import mean_score
 
         return float(mean_score(self.values, self.origin[0], self.origin[1], self.resolution,
                                 np.ascontiguousarray(points, dtype=np.float64), np.asarray(pose, dtype=np.float64)))

@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from frontend.likelihood import LikelihoodField, sample
+from kosmap.frontend.likelihood import LikelihoodField, sample
 
 
 @njit(cache=True)

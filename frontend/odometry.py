@@ -26,8 +26,8 @@ import numpy as np
 
 from numba import njit
 
-from frontend import se2
-from frontend.params import StageConfig, param
+from kosmap.frontend import se2
+from kosmap.frontend.params import StageConfig, param
 
 
 # Overrides for a narrow depth-camera (KOS-like) scan, 70° and ≤ 4.5 m: hold along-track and across-track
@@ -158,7 +158,7 @@ class WheelOdometry:
         de-skewing a scan stamped then needs (`scan_to_points(..., twist=)`)."""
         if len(self.t) < 2 or self.t[0] > stamp_ns - window_ns or self.t[-1] < stamp_ns:
             return None
-        from frontend.deskew import sensor_twist
+        from kosmap.frontend.deskew import sensor_twist
 
         return sensor_twist(self.pose_at(stamp_ns - window_ns), self.pose_at(stamp_ns), window_ns * 1e-9, mount)
 
@@ -253,7 +253,7 @@ class _LocalSubmap:
     """A local submap: a coarse and a fine likelihood field around where it started, and its keyframe count."""
 
     def __init__(self, center, cfg: OdometryConfig) -> None:
-        from frontend.likelihood import LikelihoodField
+        from kosmap.frontend.likelihood import LikelihoodField
 
         self.coarse = LikelihoodField.around(center, cfg.submap_size, cfg.coarse_resolution, cfg.sigma_coarse)
         self.fine = LikelihoodField.around(center, cfg.submap_size, cfg.resolution, cfg.sigma_fine)
@@ -284,7 +284,7 @@ class SubmapOdometry:
         return se2.compose(self.pose, self.velocity), False
 
     def _insert(self, pose: np.ndarray, pts: np.ndarray) -> None:
-        from frontend.likelihood import densify
+        from kosmap.frontend.likelihood import densify
 
         cfg = self.cfg
         if not self.submaps or self.submaps[-1].count >= cfg.submap_keyframes:
@@ -305,7 +305,7 @@ class SubmapOdometry:
 
     def _match(self, pts: np.ndarray, pred: np.ndarray, has_odom: bool) -> tuple[np.ndarray, float, np.ndarray]:
         """Correlative search around the prediction, then Gauss–Newton on the coarse and the fine field."""
-        from frontend.matcher import correlative_search, gauss_newton
+        from kosmap.frontend.matcher import correlative_search, gauss_newton
 
         cfg = self.cfg
         sm = self.submaps[0]
@@ -333,7 +333,7 @@ class SubmapOdometry:
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         """Branch-and-bound search over ±recovery_linear, ±recovery_angular_deg, then Gauss–Newton."""
-        from frontend.matcher import SearchGrids, gauss_newton
+        from kosmap.frontend.matcher import SearchGrids, gauss_newton
 
         cfg = self.cfg
         sm = self.submaps[0]

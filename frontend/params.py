@@ -9,7 +9,7 @@ from __future__ import annotations
 import dataclasses
 from typing import Any, ClassVar
 
-from frontend.errors import ConfigError
+from kosmap.frontend.errors import ConfigError
 
 
 def param(default: Any, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,

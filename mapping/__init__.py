@@ -1,3 +1,3 @@
 """The product's core: the pipeline, occupancy grids, map I/O, map comparison and reports."""
 
-import frontend  # noqa: F401  (sets where numba caches kernels: frontend/numbacache.py)
+import kosmap.frontend  # noqa: F401  (sets where numba caches kernels: frontend/numbacache.py)

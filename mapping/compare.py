@@ -30,9 +30,9 @@ import numpy as np
 from scipy import fft as sfft
 from scipy.spatial import cKDTree
 
-from frontend.errors import KosmapError
-from frontend.params import StageConfig, param
-from mapping.grid import OccupancyGrid
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.params import StageConfig, param
+from kosmap.mapping.grid import OccupancyGrid
 
 
 @dataclass

@@ -10,16 +10,16 @@ from typing import Any
 
 import tomli_w
 
-from backend.graph import GraphConfig
-from frontend.camera import DepthConfig
-from frontend.errors import ConfigError
-from frontend.fspf import FspfConfig
-from frontend.kos import KosConfig
-from frontend.logs.topics import TopicsConfig
-from frontend.odometry import OdometryConfig
-from mapping.compare import CompareConfig
-from mapping.grid import GridConfig
-from mapping.pipeline_config import BuildConfig
+from kosmap.backend.graph import GraphConfig
+from kosmap.frontend.camera import DepthConfig
+from kosmap.frontend.errors import ConfigError
+from kosmap.frontend.fspf import FspfConfig
+from kosmap.frontend.kos import KosConfig
+from kosmap.frontend.logs.topics import TopicsConfig
+from kosmap.frontend.odometry import OdometryConfig
+from kosmap.mapping.compare import CompareConfig
+from kosmap.mapping.grid import GridConfig
+from kosmap.mapping.pipeline_config import BuildConfig
 
 
 @dataclass

@@ -33,14 +33,14 @@ from typing import Any
 
 import numpy as np
 
-from frontend.camera import DepthConfig
-from frontend.depthstream import DepthItem
-from frontend.errors import KosmapError
-from frontend.fspf import FspfConfig, warmup
-from frontend.kos import Bearings, KosConfig
-from frontend.kosframe import KosFrame, kos_frame
-from frontend.records import DepthFrame
-from mapping.childproc import die_with_parent
+from kosmap.frontend.camera import DepthConfig
+from kosmap.frontend.depthstream import DepthItem
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.fspf import FspfConfig, warmup
+from kosmap.frontend.kos import Bearings, KosConfig
+from kosmap.frontend.kosframe import KosFrame, kos_frame
+from kosmap.frontend.records import DepthFrame
+from kosmap.mapping.childproc import die_with_parent
 
 _CONFIGS: tuple | None = None  # (fspf, depth, kos) configs of this worker process
 _SLOTS: mmap.mmap | None = None  # the shared depth slots (inherited at fork)

@@ -9,9 +9,9 @@ import numpy as np
 
 from numba import njit
 
-from frontend import se2
-from frontend.deskew import deskew_points, sensor_twist
-from frontend.params import StageConfig, param
+from kosmap.frontend import se2
+from kosmap.frontend.deskew import deskew_points, sensor_twist
+from kosmap.frontend.params import StageConfig, param
 
 
 @dataclass
@@ -223,7 +223,7 @@ class GridBuilder:
     def __init__(self, config: GridConfig | None = None, mount=(0.0, 0.0, 0.0), engine: str = "numba") -> None:
         self.config = config or GridConfig()
         if self.config.p_min >= self.config.p_max:
-            from frontend.errors import ConfigError
+            from kosmap.frontend.errors import ConfigError
             raise ConfigError(f"config [grid] p_min = {self.config.p_min} must be below p_max = {self.config.p_max}")
         self.mount = tuple(float(v) for v in mount)
         self.res = float(self.config.resolution)

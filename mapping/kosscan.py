@@ -17,16 +17,16 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.camera import lookup_static
-from frontend.depthstream import DepthItem, DepthResolver
-from frontend.errors import TopicError
-from frontend.kos import FUSED, OBSTACLE, Bearings, bearings_for, camera_view, fuse_with_laser, in_view
-from frontend.kosframe import KosFrame, merge_cameras
-from frontend.logs import detect_topics, open_log
-from frontend.records import DepthFrame, Scan, Transform, Transforms
-from mapping.config import Config, write_config
-from mapping.framepool import FramePool
-from mapping.mapio import save_figure
+from kosmap.frontend.camera import lookup_static
+from kosmap.frontend.depthstream import DepthItem, DepthResolver
+from kosmap.frontend.errors import TopicError
+from kosmap.frontend.kos import FUSED, OBSTACLE, Bearings, bearings_for, camera_view, fuse_with_laser, in_view
+from kosmap.frontend.kosframe import KosFrame, merge_cameras
+from kosmap.frontend.logs import detect_topics, open_log
+from kosmap.frontend.records import DepthFrame, Scan, Transform, Transforms
+from kosmap.mapping.config import Config, write_config
+from kosmap.mapping.framepool import FramePool
+from kosmap.mapping.mapio import save_figure
 
 KOS_PREFIX = "/kinect_scan/"
 
@@ -262,7 +262,7 @@ def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: li
 def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,
              progress: bool = True) -> dict:
     """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary."""
-    from mapping.outdir import check_out, writing
+    from kosmap.mapping.outdir import check_out, writing
 
     out = check_out(out)
     with open_log(log_path) as log:  # refuse a log without depth before writing anything
@@ -279,7 +279,7 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
     """run_scan's work, into a folder claimed for it."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs.writer import McapWriter
 
     write_config(cfg, out / "config.toml")
     run = ScanRun()

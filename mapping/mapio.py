@@ -14,8 +14,8 @@ import cv2
 import numpy as np
 import yaml
 
-from frontend.errors import KosmapError
-from mapping.grid import OccupancyGrid
+from kosmap.frontend.errors import KosmapError
+from kosmap.mapping.grid import OccupancyGrid
 
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
@@ -212,7 +212,7 @@ def write_grid_mcap(grid: OccupancyGrid, path: str | Path, topic: str = "/map", 
                     trajectory: np.ndarray | None = None, stamps_ns: np.ndarray | None = None,
                     path_topic: str = "/trajectory") -> Path:
     """The grid as nav_msgs/OccupancyGrid in an MCAP (Foxglove, ROS 2), with the trajectory as nav_msgs/Path."""
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs.writer import McapWriter
 
     with McapWriter(path) as w:
         w.write_grid(topic, int(stamp_ns), grid.frame_id, grid.data, grid.resolution, grid.origin)

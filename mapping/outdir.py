@@ -15,7 +15,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from frontend.errors import KosmapError
+from kosmap.frontend.errors import KosmapError
 
 MANIFEST = ".kosmap-outputs"
 SPILL_PREFIX = ".kosmap-spill-"  # a build's temporary folder inside its output folder (removed when it ends)

@@ -35,23 +35,23 @@ from typing import Any
 
 import numpy as np
 
-from frontend import se2
-from frontend.camera import lookup_static
-from frontend.depthstream import DepthItem
-from frontend.errors import ConfigError, KosmapError, TopicError
-from frontend.kos import FUSED, OBSTACLE, fuse_with_laser
-from frontend.kosframe import KosFrame
-from frontend.logs import detect_topics, open_log
-from frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
-from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
-from mapping.config import Config, config_dict, write_config
-from mapping.childproc import die_with_parent
-from mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
-from mapping.grid import GridBuilder, OccupancyGrid
-from mapping.jsonsafe import json_safe
-from mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
-from mapping.outdir import SPILL_PREFIX, check_out, claim, discard, record
-from mapping.slamproc import RemoteFeed, SlamProcessError
+from kosmap.frontend import se2
+from kosmap.frontend.camera import lookup_static
+from kosmap.frontend.depthstream import DepthItem
+from kosmap.frontend.errors import ConfigError, KosmapError, TopicError
+from kosmap.frontend.kos import FUSED, OBSTACLE, fuse_with_laser
+from kosmap.frontend.kosframe import KosFrame
+from kosmap.frontend.logs import detect_topics, open_log
+from kosmap.frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
+from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
+from kosmap.mapping.config import Config, config_dict, write_config
+from kosmap.mapping.childproc import die_with_parent
+from kosmap.mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
+from kosmap.mapping.grid import GridBuilder, OccupancyGrid
+from kosmap.mapping.jsonsafe import json_safe
+from kosmap.mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
+from kosmap.mapping.outdir import SPILL_PREFIX, check_out, claim, discard, record
+from kosmap.mapping.slamproc import RemoteFeed, SlamProcessError
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
 ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
@@ -335,7 +335,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     map_server YAML, which has its resolution). `reads`: other files the run reads (--config): like the log and
     the blueprint, never replaced by an output in `out_dir`.
     """
-    from mapping.slam import Slam
+    from kosmap.mapping.slam import Slam
 
     t_start = time.perf_counter()
     cpu_start = time.process_time()
@@ -350,7 +350,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     check_out(out)
     bp_grid = None
     if blueprint is not None:
-        from mapping.mapio import read_blueprint
+        from kosmap.mapping.mapio import read_blueprint
 
         bp_grid = read_blueprint(blueprint, blueprint_scale, cfg.compare.blueprint_dark)  # fails before any work
     with open_log(log) as lg:
@@ -366,10 +366,10 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     if has_depth and bcfg.slam_scan not in bands:
         raise ConfigError(f"config [build] slam_scan = {bcfg.slam_scan!r} is not a KOS scan of this config; "
                           f"choose one of {', '.join(bands)}")
-    from mapping.slam import kos_odometry_config
+    from kosmap.mapping.slam import kos_odometry_config
 
     kos_ocfg: OdometryConfig = kos_odometry_config(cfg)  # the same front end as `kosmap slam --source kos`
-    from mapping.slam import kos_graph_config
+    from kosmap.mapping.slam import kos_graph_config
 
     kos_gcfg = kos_graph_config(cfg)  # the same graph as `kosmap slam --source kos` (KOS_GRAPH, then [build] kos_graph)
 
@@ -437,7 +437,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             frames_png: Path | None | bool = True
             traj_png: Path | None | bool = True
             if report:  # drawn here while the workers compare (this process would only wait)
-                from mapping.report import frames_figure, trajectory_figure
+                from kosmap.mapping.report import frames_figure, trajectory_figure
 
                 if has_depth:
                     frames_png = frames_figure(out)
@@ -464,7 +464,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                                                 if metrics["timing"]["total_s"] > 0 else None)
         files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
         if report:
-            from mapping.report import write_report
+            from kosmap.mapping.report import write_report
 
             t_rep = time.perf_counter()
             files.update(write_report(out, metrics, frames_png, traj_png))
@@ -814,8 +814,8 @@ def _pass2(spill: Spill, p1: dict, results: dict, cfg: Config, out: Path, files:
     """Every grid from the spill and the optimised poses (one job per map, while this process writes the MCAP);
     maps (PNG, PGM+YAML), trajectories (TUM), the MCAP. Each finished grid starts its comparisons (`compares`)
     while the MCAP is still being written."""
-    from backend.trajio import write_tum
-    from mapping.mapio import grid_picture, write_map_server, write_png
+    from kosmap.backend.trajio import write_tum
+    from kosmap.mapping.mapio import grid_picture, write_map_server, write_png
 
     bcfg = cfg.build
     traj = {name: {"stamps_ns": res.stamps_ns, "poses": res.poses} for name, res in results.items()}
@@ -902,7 +902,7 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
     """One MCAP for Foxglove: KOS scans per level, the laser and fused scans used, plane points (a subsample),
     map → base_link on /tf (from the KOS SLAM, else the laser's), the paths, and every map. `poll` is called
     between batches of messages."""
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs.writer import McapWriter
 
     primary = "kos" if "kos" in results else "laser"
     pres = results[primary]
@@ -961,7 +961,7 @@ def _write_mcap(path: Path, spill: Spill, p1: dict, results: dict, grids_when_do
 def _compare_job(a: OccupancyGrid, b: OccupancyGrid, ccfg, more: tuple = ()) -> list[tuple]:
     """A vs B, then each map of `more` vs B through A's alignment (maps made on A's poses share A's frame): per map,
     (metrics, overlay picture, None) or (None, None, why not)."""
-    from mapping.compare import Alignment, CompareError, align, compare, overlay_picture
+    from kosmap.mapping.compare import Alignment, CompareError, align, compare, overlay_picture
 
     try:
         alignment = align(a, b, ccfg) if ccfg.align else Alignment()
@@ -1026,7 +1026,7 @@ class _Compares:
 
     def finish(self, out: Path, files: dict, warnings: list[str]) -> tuple[dict, dict]:
         """Every comparison's metrics and overlay picture (written), in the pairs' order."""
-        from mapping.mapio import write_png
+        from kosmap.mapping.mapio import write_png
 
         results = {}
         for pair, fut in self.futures.items():
@@ -1056,8 +1056,8 @@ class _Compares:
 def _metrics(log: Path, det, info_counts: dict, duration: float, p1: dict, results: dict, grids: dict, traj: dict,
              comparisons: dict, overlays: dict, cfg: Config, blueprint, workers: int, warnings: list[str],
              timing: dict) -> dict:
-    from backend import metrics as M
-    from mapping.slam import evaluate, summary
+    from kosmap.backend import metrics as M
+    from kosmap.mapping.slam import evaluate, summary
 
     st = p1["stats"]
     frames = p1["frames"]

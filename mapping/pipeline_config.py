@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from frontend.params import StageConfig, param
+from kosmap.frontend.params import StageConfig, param
 
 # A narrow depth scan (70°, ≤ 4.5 m) gives the matcher no fix along a corridor: a strong odometry prior along
 # the direction of travel and no unconstrained correlative search (STACK.md, "The narrow depth camera in a

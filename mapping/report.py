@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.mapio import save_figure
+from kosmap.mapping.mapio import save_figure
 
 TOL = "0.10"  # the tolerance of the headline numbers (the acceptance)
 
@@ -43,7 +43,7 @@ def _label(name: str, metrics: dict) -> str:
 def _read_tum(path: Path) -> tuple[np.ndarray, np.ndarray] | None:
     if not path.is_file():
         return None
-    from backend.trajio import read_tum
+    from kosmap.backend.trajio import read_tum
 
     t, p = read_tum(path)
     return (t, p) if len(t) else None
@@ -57,7 +57,7 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from backend.metrics import align_se2, associate
+    from kosmap.backend.metrics import align_se2, associate
 
     tr = {name: _read_tum(out / f"trajectory_{name}.tum") for name in ("kos", "laser")}
     tr["odometry"] = _read_tum(out / "odometry.tum")
@@ -70,7 +70,7 @@ def trajectory_figure(out: Path, metrics: dict) -> Path | None:
     bp = metrics.get("sources", {}).get("blueprint")
     if bp and gt is not None:
         try:
-            from mapping.mapio import read_blueprint
+            from kosmap.mapping.mapio import read_blueprint
 
             g = read_blueprint(bp, metrics["sources"].get("blueprint_scale"),
                                metrics.get("config", {}).get("compare", {}).get("blueprint_dark", 0.5))

@@ -18,16 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.graph import GraphConfig, PoseGraph
-from backend.imu import GyroBuffer
-from backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
-from backend.loops import LoopCloser, LoopConstraint
-from backend.manhattan import ManhattanHeading
-from frontend import se2
-from frontend.errors import KosmapError, TopicError
-from frontend.odometry import NARROW_SCAN, OdometryConfig, WheelOdometry, make_odometry, scan_to_points
-from frontend.records import Odometry, Scan, Transforms
-from mapping.jsonsafe import json_safe
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.imu import GyroBuffer
+from kosmap.backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
+from kosmap.backend.loops import LoopCloser, LoopConstraint
+from kosmap.backend.manhattan import ManhattanHeading
+from kosmap.frontend import se2
+from kosmap.frontend.errors import KosmapError, TopicError
+from kosmap.frontend.odometry import NARROW_SCAN, OdometryConfig, WheelOdometry, make_odometry, scan_to_points
+from kosmap.frontend.records import Odometry, Scan, Transforms
+from kosmap.mapping.jsonsafe import json_safe
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
 ODOM_STALE_S = 0.5  # scans farther than this outside the odometry's span get no odometry prior
@@ -351,8 +351,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
     advances; `keep_scans` keeps the Scan records (for the map); `max_seconds` stops after that much log
     time (for slices).
     """
-    from frontend.logs import detect_topics, open_log
-    from mapping.config import Config
+    from kosmap.frontend.logs import detect_topics, open_log
+    from kosmap.mapping.config import Config
 
     cfg = cfg or Config()
     if source == "kos":
@@ -473,7 +473,7 @@ def _with_overrides(base, defaults: dict, overrides: dict, what: str):
     known = {f.name for f in dataclasses.fields(base)}
     bad = [k for k in overrides if k not in known]
     if bad:
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         raise ConfigError(f"config [build] {what} has unknown key(s) {', '.join(bad)}; known: {', '.join(sorted(known))}")
     return dataclasses.replace(base, **{**defaults, **overrides})
@@ -518,17 +518,17 @@ def kos_graph_config(cfg) -> GraphConfig:
 def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | None, workers: int) -> SlamResult:
     """SLAM on the KOS scan named by [build] slam_scan (obstacle by default) of every time step
     (mapping/kosscan.py's KosStream), with the log's wheel odometry; the ground-truth topic is read for scoring."""
-    from frontend.logs import detect_topics, open_log
-    from frontend.odometry import scan_points_base
-    from mapping.framepool import FramePool
-    from mapping.kosscan import KosStream, ScanRun
-    from mapping.pipeline import SlamFeed
+    from kosmap.frontend.logs import detect_topics, open_log
+    from kosmap.frontend.odometry import scan_points_base
+    from kosmap.mapping.framepool import FramePool
+    from kosmap.mapping.kosscan import KosStream, ScanRun
+    from kosmap.mapping.pipeline import SlamFeed
 
     t_start = time.perf_counter()
     bands = [b[0] for b in cfg.kos.bands()]
     name = cfg.build.slam_scan
     if name not in bands:
-        from frontend.errors import ConfigError
+        from kosmap.frontend.errors import ConfigError
 
         raise ConfigError(f"config [build] slam_scan = {name!r} is not a KOS scan of this config; choose one of {', '.join(bands)}")
     ocfg = kos_odometry_config(cfg)
@@ -616,8 +616,8 @@ def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = Non
     """Accuracy of a run: the relations metric (in the scan's frame, which the relations relate) and the
     loops' precision against the trajectory the relations describe; ATE, RPE and loop precision against a
     TUM ground truth (base_link), or against the log's own ground-truth topic when no file is given."""
-    from backend import metrics as M
-    from backend.trajio import read_tum
+    from kosmap.backend import metrics as M
+    from kosmap.backend.trajio import read_tum
 
     out: dict = {}
     mount = np.repeat(result.mount[None], max(len(result.loops), 1), 0)[: len(result.loops)]
@@ -660,7 +660,7 @@ def evaluate(result: SlamResult, relations: str | Path | np.ndarray | None = Non
 
 def build_map(result: SlamResult, grid_cfg=None):
     """The log-odds occupancy grid (mapping/grid.py) of the kept scans at their optimised poses."""
-    from mapping.grid import GridBuilder
+    from kosmap.mapping.grid import GridBuilder
 
     if not result.scans:
         raise KosmapError("the run kept no scans; call run_slam(..., keep_scans=True) to build a map")
@@ -695,8 +695,8 @@ def save_run(result: SlamResult, out: str | Path, cfg=None, metrics: dict | None
     import json
     import os
 
-    from backend.trajio import write_tum
-    from mapping.config import write_config
+    from kosmap.backend.trajio import write_tum
+    from kosmap.mapping.config import write_config
 
     d = Path(out)
     d.mkdir(parents=True, exist_ok=True)
@@ -710,7 +710,7 @@ def save_run(result: SlamResult, out: str | Path, cfg=None, metrics: dict | None
     os.replace(tmp, d / "metrics.json")
     paths["metrics"] = d / "metrics.json"
     if grid is not None:
-        from mapping.mapio import grid_picture, write_map_server, write_png
+        from kosmap.mapping.mapio import grid_picture, write_map_server, write_png
 
         paths["map_png"] = write_png(grid_picture(grid, result.poses), d / "map.png")
         paths["map_yaml"] = write_map_server(grid, d / "map.yaml")

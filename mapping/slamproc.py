@@ -20,9 +20,9 @@ from typing import Any
 
 import numpy as np
 
-from frontend.errors import KosmapError
-from mapping.childproc import die_with_parent, set_name
-from mapping.framepool import peak_rss_mb, sendable_error
+from kosmap.frontend.errors import KosmapError
+from kosmap.mapping.childproc import die_with_parent, set_name
+from kosmap.mapping.framepool import peak_rss_mb, sendable_error
 
 
 class SlamProcessError(KosmapError):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from tools.data import data_dir as _data_dir
+from kosmap.tools.data import data_dir as _data_dir
 
 
 def require_data(relpath: str = "") -> Path:

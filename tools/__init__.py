@@ -1,3 +1,3 @@
 """Entry points: the `kosmap` CLI, the log simulator, converters and benchmarks."""
 
-import frontend  # noqa: F401  (sets where numba caches kernels: frontend/numbacache.py)
+import kosmap.frontend  # noqa: F401  (sets where numba caches kernels: frontend/numbacache.py)

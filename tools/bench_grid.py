@@ -1,7 +1,7 @@
 """Benchmark: the grid builder's vectorised numpy ray casting vs a numba per-beam traversal (baseline measured
 in the same run), and the map comparison's alignment. Writes docs/bench/grid.json and grid.md.
 
-    .venv/bin/python -m tools.bench_grid [--scans 200]
+    .venv/bin/python -m kosmap.tools.bench_grid [--scans 200]
 
 Both engines of mapping.grid.GridBuilder trace the same beams: the numpy path (vectorised grid-line
 crossings) is the baseline; the numba path (Amanatides & Woo per beam) is the default because of this.
@@ -16,9 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from mapping.compare import CompareConfig, align
-from mapping.grid import GridBuilder, GridConfig
-from mapping.mapio import outside_unknown
+from kosmap.mapping.compare import CompareConfig, align
+from kosmap.mapping.grid import GridBuilder, GridConfig
+from kosmap.mapping.mapio import outside_unknown
 
 OUT = Path(__file__).resolve().parents[1] / "docs" / "bench"
 
@@ -47,7 +47,7 @@ def raycast(o, angles, segs, max_range):
 
 def bench_sensor(name, segs, poses, n, fov, max_range, res):
     """ms per scan of both engines on the same beams (numba compiled before timing), and their agreement."""
-    from frontend.records import Scan
+    from kosmap.frontend.records import Scan
 
     cfg = GridConfig(resolution=res, no_return_clear=min(4.0, max_range))
     out = {}
@@ -76,7 +76,7 @@ def bench_sensor(name, segs, poses, n, fov, max_range, res):
 
 def wall_grid(segs, res, transform=(0.0, 0.0, 0.0), margin=0.5):
     """The walls (moved by transform) rasterised: 100 on a wall, 0 elsewhere."""
-    from mapping.grid import OccupancyGrid
+    from kosmap.mapping.grid import OccupancyGrid
 
     c, s = np.cos(transform[2]), np.sin(transform[2])
     rot = np.array([[c, s], [-s, c]])
@@ -121,7 +121,7 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     (OUT / "grid.json").write_text(json.dumps(res, indent=2) + "\n")
     lines = ["# Grid builder and map alignment", "",
-             "`python -m tools.bench_grid`: ms per scan integrating into the log-odds grid, the product's vectorised",
+             "`python -m kosmap.tools.bench_grid`: ms per scan integrating into the log-odds grid, the product's vectorised",
              "numpy traversal (baseline) vs the numba per-beam Amanatides–Woo loop (default), same run, same beams.", "",
              "| sensor | res (m) | scans | numpy ms/scan | numba ms/scan | numpy/numba | cells identical |",
              "|---|---|---|---|---|---|---|"]

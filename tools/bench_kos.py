@@ -1,6 +1,6 @@
 """Benchmark: KOS ms per frame for 1 and 3 levels beside a depthimage_to_laserscan-style baseline.
 
-    .venv/bin/python -m tools.bench_kos [--frames 20]
+    .venv/bin/python -m kosmap.tools.bench_kos [--frames 20]
 
 Frames: simulated Kinect v2 frames of the office world (noisy); KOS input is FSPF+'s plane pixels (the thesis)
 or all valid depth pixels (the `depth` source). The pipeline's kernel (`KosAccumulator.add_depth`: per-pixel
@@ -27,22 +27,22 @@ import time  # noqa: E402
 import numpy as np  # noqa: E402
 from numba import njit  # noqa: E402
 
-from frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
-from frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
-from frontend import kos as K  # noqa: E402
-from frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view  # noqa: E402
-from tools.benchutil import pin_one_core  # noqa: E402
-from tools.data import REPO  # noqa: E402
+from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
+from kosmap.frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
+from kosmap.frontend import kos as K  # noqa: E402
+from kosmap.frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view  # noqa: E402
+from kosmap.tools.benchutil import pin_one_core  # noqa: E402
+from kosmap.tools.data import REPO  # noqa: E402
 
 TARGET_3_LEVELS_MS, TARGET_PER_LEVEL_MS = 1.0, 0.1  # issue 5
 
 
 def frames(n: int):
     """(depth, camera, mount) of n noisy simulated office frames along the bundled path."""
-    from tools.simulate import load_world, render_depth
-    from tools.simulate.log import trajectory
-    from tools.simulate.config import SimConfig
-    from tools.simulate.render import camera_mount, kinect_v2_model
+    from kosmap.tools.simulate import load_world, render_depth
+    from kosmap.tools.simulate.log import trajectory
+    from kosmap.tools.simulate.config import SimConfig
+    from kosmap.tools.simulate.render import camera_mount, kinect_v2_model
 
     world = load_world("office")
     traj = trajectory(world, SimConfig())

@@ -1,6 +1,6 @@
 """Benchmark: KOS SLAM on simulated office logs with and without the gyro (issue #9), several seeds and depth rates.
 
-    .venv/bin/python -m tools.bench_kos_slam LOG.mcap [LOG.mcap …] [--rates 10 5] [--laser] [--cache DIR] [--out docs]
+    .venv/bin/python -m kosmap.tools.bench_kos_slam LOG.mcap [LOG.mcap …] [--rates 10 5] [--laser] [--cache DIR] [--out docs]
 
 Per log, the depth frames go through FSPF+ and KOS once (at the highest rate asked) and the SLAM inputs are
 recorded: every call the run makes to mapping.pipeline.SlamFeed (odometry, KOS scans, IMU samples, and when log
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.data import REPO
+from kosmap.tools.data import REPO
 
 CONFIGS = {
     "imu": {},
@@ -50,9 +50,9 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     path = cache / f"{log.stem}-{_key(log, rate)}.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
-    import mapping.pipeline as P
-    from mapping import slam as S
-    from mapping.config import Config
+    import kosmap.mapping.pipeline as P
+    from kosmap.mapping import slam as S
+    from kosmap.mapping.config import Config
 
     events: list = []
     real = P.SlamFeed
@@ -97,10 +97,10 @@ def record(log: Path, rate: float, cache: Path) -> dict:
 
 def replay(doc: dict, rate: float, **graph) -> dict:
     """SLAM on recorded inputs with [graph] overrides (over the KOS graph defaults); accuracy and calibration."""
-    from frontend.records import Odometry
-    from mapping import slam as S
-    from mapping.config import Config
-    from mapping.pipeline import SlamFeed
+    from kosmap.frontend.records import Odometry
+    from kosmap.mapping import slam as S
+    from kosmap.mapping.config import Config
+    from kosmap.mapping.pipeline import SlamFeed
 
     cfg = Config()
     cfg.build.depth_rate = rate
@@ -136,8 +136,8 @@ def replay(doc: dict, rate: float, **graph) -> dict:
 
 
 def laser(log: Path, imu: bool) -> dict:
-    from mapping import slam as S
-    from mapping.config import Config
+    from kosmap.mapping import slam as S
+    from kosmap.mapping.config import Config
 
     cfg = Config()
     cfg.graph.imu = imu
@@ -152,7 +152,7 @@ def laser(log: Path, imu: bool) -> dict:
 
 
 def _truth(log: Path) -> dict:
-    from tools.simulate.log import simulation_truth
+    from kosmap.tools.simulate.log import simulation_truth
 
     t = simulation_truth(log) or {}
     tr = t.get("truth", {})
@@ -227,8 +227,8 @@ def main() -> None:
                       f"(truth {_f(truth['odometry_scale'], '{:.4f}')}), bias {_f(r['gyro_bias_deg_s'], '{:+.4f}')} °/s, "
                       f"{r['slam_seconds']:.1f} s", flush=True)
         if a.laser:
-            from frontend.logs import detect_topics, open_log
-            from mapping.config import Config
+            from kosmap.frontend.logs import detect_topics, open_log
+            from kosmap.mapping.config import Config
 
             with open_log(log) as lg:
                 has_laser = bool(detect_topics(lg.info().types(), Config().topics).scan)
@@ -240,7 +240,7 @@ def main() -> None:
                     print(f"  laser imu={imu}: ATE {r['ate']:.3f} m, {r['realtime_factor']:.0f}× real time", flush=True)
     meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.machine(), "cores": os.cpu_count(),
             "load": " ".join(f"{x:.1f}" for x in os.getloadavg())}
-    from mapping.jsonsafe import json_safe
+    from kosmap.mapping.jsonsafe import json_safe
 
     (a.out / "bench").mkdir(parents=True, exist_ok=True)
     (a.out / "bench" / "kos_slam.json").write_text(json.dumps(json_safe({"meta": meta, "results": res, "laser": lasers}), indent=2))

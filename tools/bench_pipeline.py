@@ -1,7 +1,7 @@
 """Benchmark: `kosmap build` on the simulated office: real-time factor (log duration / wall time) and peak memory
 for a 1-minute and a 10-minute log, and where the time goes.
 
-    .venv/bin/python -m tools.bench_pipeline [--minutes 1 10] [--workers 2] [--no-serial]
+    .venv/bin/python -m kosmap.tools.bench_pipeline [--minutes 1 10] [--workers 2] [--no-serial]
 
 The logs are `kosmap simulate office` with the simulator's default rates (Kinect 30 Hz, laser 40 Hz, zstd), the
 10-minute one driving the bundled 140 m path twice; they are cached under .kosmap-cache/bench/. Each build runs in
@@ -36,8 +36,8 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.benchutil import cpu_model
-from tools.data import REPO
+from kosmap.tools.benchutil import cpu_model
+from kosmap.tools.data import REPO
 
 CACHE = REPO / ".kosmap-cache" / "bench"
 OUT = REPO / "docs" / "bench"
@@ -45,9 +45,9 @@ OUT = REPO / "docs" / "bench"
 
 def office_log(minutes: float) -> tuple[Path, Path]:
     """The office log of this length (default simulator settings), simulated once; and its blueprint."""
-    from mapping.mapio import write_map_server
-    from tools.simulate import SimConfig, load_world, simulate
-    from tools.simulate.world import PathSpec
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate.world import PathSpec
 
     world = load_world("office")
     CACHE.mkdir(parents=True, exist_ok=True)
@@ -67,8 +67,8 @@ def office_log(minutes: float) -> tuple[Path, Path]:
 
 def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]) -> None:
     """Child mode: build, then print the metrics that matter and this process's peak memory as JSON."""
-    from mapping.config import load_config
-    from mapping.pipeline import build
+    from kosmap.mapping.config import load_config
+    from kosmap.mapping.pipeline import build
 
     load0 = os.getloadavg()[0]
     cpu0 = _cpu_times()
@@ -171,7 +171,7 @@ def _quarters(samples: list[tuple[float, float, float, float]], log_s: float) ->
 def run(log: Path, bp: Path, workers: int, sets: list[str], code: Path = REPO) -> dict:
     """One build in a child process of the code in `code` (this tree, or a worktree of another commit: --against)."""
     out = CACHE / (f"out_{log.stem}_w{workers}_{len(sets)}" + ("" if code == REPO else f"_{code.name}"))
-    p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--one", str(log.resolve()), str(out), str(workers),
+    p = subprocess.run([sys.executable, "-m", "kosmap.tools.bench_pipeline", "--one", str(log.resolve()), str(out), str(workers),
                         str(bp.resolve())] + [f"--set={x}" for x in sets], capture_output=True, text=True, cwd=code)
     if p.returncode != 0:
         raise SystemExit(f"build of {log.name} ({code.name}) failed:\n{p.stderr[-3000:]}")
@@ -254,8 +254,8 @@ def account(log: str, out: str, blueprint: str, sets: list[str]) -> None:
     import cProfile
     import pstats
 
-    from mapping.config import load_config
-    from mapping.pipeline import build
+    from kosmap.mapping.config import load_config
+    from kosmap.mapping.pipeline import build
 
     pr = cProfile.Profile(time.thread_time)
     c0, m0 = time.process_time(), time.thread_time()
@@ -334,7 +334,7 @@ def main() -> None:
         doc["accounting"] = []
         for c in a.configs:
             sets = [] if c == "default" else c.split(",")
-            p = subprocess.run([sys.executable, "-m", "tools.bench_pipeline", "--account-one", str(log),
+            p = subprocess.run([sys.executable, "-m", "kosmap.tools.bench_pipeline", "--account-one", str(log),
                                 str(CACHE / f"out_{log.stem}_profile"), str(bp)] + [f"--set={x}" for x in sets],
                                capture_output=True, text=True, cwd=REPO)
             if p.returncode != 0:
@@ -432,7 +432,7 @@ def _older_rows(doc: dict) -> str:
 
 def markdown(doc: dict) -> str:
     L = ["# `kosmap build` speed and memory", "",
-         "`python -m tools.bench_pipeline`: the simulated office (Kinect 512×424 at 30 Hz, laser 1081 beams at 40 Hz, "
+         "`python -m kosmap.tools.bench_pipeline`: the simulated office (Kinect 512×424 at 30 Hz, laser 1081 beams at 40 Hz, "
          "wheel odometry 50 Hz, zstd MCAP), built with the default config, at the depth rate of each row's config (each depth frame kept through FSPF+ "
          "and three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
          "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",

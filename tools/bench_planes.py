@@ -1,6 +1,6 @@
 """Benchmark: FSPF+ and FSPF (numba and numpy paths) beside pyransac3d, ms per frame on one core.
 
-    .venv/bin/python -m tools.bench_planes [--sim-frames 12] [--real-frames 20] [--ransac-frames 4]
+    .venv/bin/python -m kosmap.tools.bench_planes [--sim-frames 12] [--real-frames 20] [--ransac-frames 4]
 
 Frames: simulated 512×424 Kinect v2 frames (tools/simulate when it is there, else the analytic box room
 of tools/boxroom.py) and real 640×480 TUM fr1_xyz frames. ε = 5, 10, 20 mm; everything else at the thesis's
@@ -24,10 +24,10 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
-from frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
-from tools.data import REPO, data_dir  # noqa: E402
-from tools.benchutil import pin_one_core  # noqa: E402
+from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
+from kosmap.frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
+from kosmap.tools.data import REPO, data_dir  # noqa: E402
+from kosmap.tools.benchutil import pin_one_core  # noqa: E402
 
 EPSILONS = (0.005, 0.010, 0.020)
 TARGETS_MS = {"fspf+": 5.0, "fspf": 1.5}  # per 512×424 frame, thesis real-time config (issue 4)
@@ -38,7 +38,7 @@ def sim_frames(n: int):
     try:
         return _simulator_frames(n), "tools.simulate, bundled office world along its path (Kinect v2 noise)"
     except Exception:  # the simulator is not there (or its API differs): the analytic box room
-        from tools.boxroom import BoxRoom, default_mount, kinect_v2, render_depth
+        from kosmap.tools.boxroom import BoxRoom, default_mount, kinect_v2, render_depth
 
         room, cam, mount = BoxRoom(), kinect_v2(), default_mount(0.0)
         rng = np.random.default_rng(0)
@@ -52,7 +52,7 @@ def sim_frames(n: int):
 
 def _simulator_frames(n: int):
     """Frames of the bundled office world along its path, Kinect v2 at 1 m, level, with sensor noise."""
-    from tools.simulate import World, camera_mount, kinect_v2_model, render_depth
+    from kosmap.tools.simulate import World, camera_mount, kinect_v2_model, render_depth
 
     world = World.load("office")
     way = np.asarray(world.path.waypoints, float)
@@ -72,7 +72,7 @@ def _simulator_frames(n: int):
 
 
 def real_frames(n: int):
-    from tools.datasets import iter_dataset
+    from kosmap.tools.datasets import iter_dataset
 
     folder = data_dir() / "depth" / "tum_fr1_xyz"
     if not folder.is_dir():

@@ -1,6 +1,6 @@
 """Benchmark: the log simulator on one core: rendering methods, noise, laser, and a minute of the office log.
 
-    .venv/bin/python -m tools.bench_simulate [--frames 40] [--naive-frames 8] [--seconds 60]
+    .venv/bin/python -m kosmap.tools.bench_simulate [--frames 40] [--naive-frames 8] [--seconds 60]
 
 Rendering: 512×424 Kinect v2 frames at poses spread along the office's bundled path, cast three ways —
 the column method (one 2D ray per image column; valid for a camera without roll and pitch), the 3D cast
@@ -28,13 +28,13 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
-from tools.data import REPO  # noqa: E402
-from tools.benchutil import pin_one_core  # noqa: E402
-from tools.simulate import SimConfig, load_world, simulate  # noqa: E402
-from tools.simulate.log import trajectory  # noqa: E402
-from tools.simulate.render import (LaserModel, camera_mount, kinect_v2_model, laser_mount,  # noqa: E402
+from kosmap.tools.data import REPO  # noqa: E402
+from kosmap.tools.benchutil import pin_one_core  # noqa: E402
+from kosmap.tools.simulate import SimConfig, load_world, simulate  # noqa: E402
+from kosmap.tools.simulate.log import trajectory  # noqa: E402
+from kosmap.tools.simulate.render import (LaserModel, camera_mount, kinect_v2_model, laser_mount,  # noqa: E402
                                    render_depth_geometry, render_laser_geometry)
-from tools.simulate.sensors import DepthNoise, LaserNoise, apply_laser_noise, depth_noise_mm  # noqa: E402
+from kosmap.tools.simulate.sensors import DepthNoise, LaserNoise, apply_laser_noise, depth_noise_mm  # noqa: E402
 
 
 

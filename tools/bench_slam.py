@@ -1,7 +1,7 @@
 """Benchmark: our 2D SLAM on the public laser logs (Intel, FR079, MIT CSAIL) against their Kümmerle relations,
 beside the published Cartographer and Graph Mapping numbers and kiss-icp measured in the same run.
 
-    .venv/bin/python -m tools.bench_slam [--logs intel fr079 csail] [--seconds S] [--no-baselines]
+    .venv/bin/python -m kosmap.tools.bench_slam [--logs intel fr079 csail] [--seconds S] [--no-baselines]
 
 Per log: raw wheel odometry; kiss-icp with the odometry increment as its guess (front end only, as
 STACK.md measured it); our scan-to-submap front end alone; the full system (front end + loop closure +
@@ -23,12 +23,12 @@ from pathlib import Path
 
 import numpy as np
 
-from backend.metrics import read_relations, relations_metric, relations_metric_split
-from frontend import se2
-from mapping.config import Config, load_config
-from mapping.jsonsafe import json_safe
-from mapping.slam import evaluate, run_slam
-from tools.data import REPO, data_dir
+from kosmap.backend.metrics import read_relations, relations_metric, relations_metric_split
+from kosmap.frontend import se2
+from kosmap.mapping.config import Config, load_config
+from kosmap.mapping.jsonsafe import json_safe
+from kosmap.mapping.slam import evaluate, run_slam
+from kosmap.tools.data import REPO, data_dir
 
 LOGS = {
     "intel": ("laser/intel/intel.orig.bag", "laser/intel/intel.relations", "Intel"),

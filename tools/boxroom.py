@@ -11,8 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from frontend.camera import mount_transform, rays
-from frontend.records import CameraModel, Transform
+from kosmap.frontend.camera import mount_transform, rays
+from kosmap.frontend.records import CameraModel, Transform
 
 
 @dataclass(frozen=True)

@@ -13,14 +13,14 @@ import sys
 
 import typer
 
-from frontend.errors import KosmapError
-from tools import commands
+from kosmap.frontend.errors import KosmapError
+from kosmap.tools import commands
 
 app = typer.Typer(name="kosmap", no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
                   help="2D maps from depth-camera robot logs: FSPF+ planes, the Kinect Obstacle Scan, SLAM, map export and comparison.")
 
 for mod in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-    importlib.import_module(f"tools.commands.{mod.name}").register(app)
+    importlib.import_module(f"kosmap.tools.commands.{mod.name}").register(app)
 
 
 def _on_sigterm(signum, _frame):

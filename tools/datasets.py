@@ -15,8 +15,8 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from frontend.errors import KosmapError
-from frontend.records import CameraModel
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.records import CameraModel
 
 DATASETS = ("tum_fr1_xyz", "open3d_rgbd_formats", "slambook2_ch5_rgbd", "cape_tunnel_frame", "pcl_mosd_plane_gt")
 

@@ -7,7 +7,7 @@ from typing import Annotated, Optional
 
 import typer
 
-from mapping.config import Config, load_config, parse_override
+from kosmap.mapping.config import Config, load_config, parse_override
 
 def out_folder(text: str | Path) -> Path:
     """--out as typed: an empty one is refused (as a Path it would silently be the current folder)."""

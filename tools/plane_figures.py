@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.planes import PLANE_CLASSES, Planes
+from kosmap.frontend.planes import PLANE_CLASSES, Planes
 
 CLASS_COLOURS = {"ground": "#8c564b", "ceiling": "#7f7f7f", "left": "#1f77b4", "right": "#2ca02c",
                  "front": "#d62728", "slanted": "#ff7f0e", "raised": "#9467bd"}

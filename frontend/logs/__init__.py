@@ -4,9 +4,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from frontend.errors import LogError
-from frontend.logs.base import LogInfo, LogReader, TopicInfo
-from frontend.logs.topics import DetectedTopics, TopicsConfig, detect_topics
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo
+from kosmap.frontend.logs.topics import DetectedTopics, TopicsConfig, detect_topics
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 BAG_MAGIC = b"#ROSBAG V2.0\n"
@@ -31,16 +31,16 @@ def open_log(path: str | Path) -> LogReader:
     if not head:
         raise LogError(f"{p} is empty; the recording may have failed")
     if head.startswith(MCAP_MAGIC):
-        from frontend.logs.mcap import McapLog
+        from kosmap.frontend.logs.mcap import McapLog
 
         return McapLog(p)
     if head.startswith(BAG_MAGIC):
-        from frontend.logs.rosbag import Ros1Bag
+        from kosmap.frontend.logs.rosbag import Ros1Bag
 
         return Ros1Bag(p)
     if head.startswith(b"#ROSBAG"):
         raise LogError(f"{p} is a ROS bag of version {head[8:12].decode(errors='replace').strip()}; kosmap reads version 2.0 (ROS 1)")
-    from frontend.logs.carmen import CarmenLog, looks_like_carmen
+    from kosmap.frontend.logs.carmen import CarmenLog, looks_like_carmen
 
     if looks_like_carmen(head):
         return CarmenLog(p)

@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.logs.convert import imu_problem, imu_samples_problems
-from frontend.records import Imu, ImuSamples, Record
+from kosmap.frontend.logs.convert import imu_problem, imu_samples_problems
+from kosmap.frontend.records import Imu, ImuSamples, Record
 
 
 @dataclass

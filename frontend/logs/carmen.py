@@ -12,10 +12,10 @@ from collections.abc import Iterable, Iterator
 
 import numpy as np
 
-from frontend.errors import LogError
-from frontend.logs import topics as T
-from frontend.logs.base import LogInfo, LogReader, TopicInfo, reorder
-from frontend.records import Odometry, Scan
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo, reorder
+from kosmap.frontend.records import Odometry, Scan
 
 SCAN_TOPIC, ODOM_TOPIC = "/scan", "/odom"
 NO_RETURN = 80.0

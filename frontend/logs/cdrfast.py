@@ -22,8 +22,8 @@ import struct
 
 import numpy as np
 
-from frontend.logs import topics as T
-from frontend.records import DepthFrame, Imu, ImuSamples, Odometry, OdometrySamples, Scan, quat_to_yaw
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.records import DepthFrame, Imu, ImuSamples, Odometry, OdometrySamples, Scan, quat_to_yaw
 
 _STAMP = struct.Struct("<iI")  # builtin_interfaces/Time: sec int32, nanosec uint32
 _U32 = struct.Struct("<I")

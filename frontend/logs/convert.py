@@ -12,9 +12,9 @@ from functools import lru_cache
 import numpy as np
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from frontend.errors import LogError
-from frontend.logs import topics as T
-from frontend.records import (CameraModel, DepthFrame, Imu, Odometry, Scan, Transform, Transforms, quat_to_yaw,
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.records import (CameraModel, DepthFrame, Imu, Odometry, Scan, Transform, Transforms, quat_to_yaw,
                               yaw_to_quat)
 
 _TF_MSGDEF = "geometry_msgs/TransformStamped[] transforms"

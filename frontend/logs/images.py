@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.errors import LogError
-from frontend.logs import topics as T
-from frontend.logs.base import LogInfo, LogReader, TopicInfo
-from frontend.records import CameraModel, DepthFrame, seconds_to_ns
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo
+from kosmap.frontend.records import CameraModel, DepthFrame, seconds_to_ns
 
 IMAGE_SUFFIXES = (".png", ".pgm", ".tif", ".tiff")
 CAMERA_NAMES = ("camera.yaml", "camera.yml", "camera.json", "intrinsics.yaml", "intrinsics.json", "calibration.yaml")

@@ -23,13 +23,13 @@ from rosbags.serde import SerdeError
 from rosbags.typesys import get_types_from_msg
 from zstandard import ZstdError
 
-from frontend.errors import LogError
-from frontend.logs import topics as _T
-from frontend.logs.cdrfast import BATCH_DECODERS as _FAST_BATCH
-from frontend.logs.cdrfast import DECODERS as _FAST
-from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
-from frontend.logs.convert import to_record, typestore
-from frontend.logs.readahead import read_ahead
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import topics as _T
+from kosmap.frontend.logs.cdrfast import BATCH_DECODERS as _FAST_BATCH
+from kosmap.frontend.logs.cdrfast import DECODERS as _FAST
+from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
+from kosmap.frontend.logs.convert import to_record, typestore
+from kosmap.frontend.logs.readahead import read_ahead
 
 _CAMERA_INFO = _T.CAMERA_INFO
 

@@ -18,9 +18,9 @@ from dataclasses import dataclass, field
 from rosbags.rosbag1 import Reader
 from rosbags.typesys import get_types_from_msg
 
-from frontend.errors import LogError
-from frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
-from frontend.logs.convert import to_record, typestore
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
+from kosmap.frontend.logs.convert import to_record, typestore
 
 _MAGIC = b"#ROSBAG V2.0\n"
 _OP_MSG, _OP_HEADER, _OP_CHUNK, _OP_CONN = 0x02, 0x03, 0x05, 0x07

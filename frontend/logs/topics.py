@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from frontend.errors import TopicError
-from frontend.params import StageConfig, param
+from kosmap.frontend.errors import TopicError
+from kosmap.frontend.params import StageConfig, param
 
 IMAGE = "sensor_msgs/msg/Image"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"

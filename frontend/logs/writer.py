@@ -12,9 +12,9 @@ from pathlib import Path
 import numpy as np
 from mcap.writer import CompressionType, Writer
 
-from frontend.logs import cdrfast, convert
-from frontend.logs import topics as T
-from frontend.records import Record, Scan
+from kosmap.frontend.logs import cdrfast, convert
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.records import Record, Scan
 
 
 class _AtomicFile:

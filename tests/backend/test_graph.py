@@ -6,9 +6,9 @@ import math
 
 import numpy as np
 
-from backend.graph import GraphConfig, PoseGraph
-from backend.metrics import ate
-from frontend import se2
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.metrics import ate
+from kosmap.frontend import se2
 
 
 def _square(n_side: int = 40, step: float = 0.25) -> np.ndarray:

@@ -8,9 +8,9 @@ import gtsam
 import numpy as np
 import pytest
 
-from backend.graph import BIAS_KEY, SCALE_KEY, GraphConfig, PoseGraph, _gyro_error, _scale_error
-from backend.imu import GyroBuffer, yaw_sigma
-from frontend import se2
+from kosmap.backend.graph import BIAS_KEY, SCALE_KEY, GraphConfig, PoseGraph, _gyro_error, _scale_error
+from kosmap.backend.imu import GyroBuffer, yaw_sigma
+from kosmap.frontend import se2
 
 T0 = 1_700_000_000_000_000_000
 

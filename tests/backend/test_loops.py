@@ -7,12 +7,12 @@ import math
 
 import numpy as np
 
-from backend.ambiguity import translation_information
-from backend.graph import GraphConfig, PoseGraph
-from backend.keyframes import Keyframe
-from backend.loops import LoopCloser, bearing_coverage
-from frontend import se2
-from frontend.matcher import branch_and_bound_excluding
+from kosmap.backend.ambiguity import translation_information
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.keyframes import Keyframe
+from kosmap.backend.loops import LoopCloser, bearing_coverage
+from kosmap.frontend import se2
+from kosmap.frontend.matcher import branch_and_bound_excluding
 
 FOV = math.radians(70.6)
 
@@ -135,8 +135,8 @@ def test_a_bare_corridor_scan_is_rejected_and_a_stacked_query_closes_the_loop():
 
 def test_second_peak_search_is_exact_and_excludes_the_neighbourhood():
     # a 1-D comb of equal peaks: excluding the best's neighbourhood must return the next-best peak's score
-    from frontend.likelihood import LikelihoodField
-    from frontend.matcher import SearchGrids, branch_and_bound, rotated_cells
+    from kosmap.frontend.likelihood import LikelihoodField
+    from kosmap.frontend.matcher import SearchGrids, branch_and_bound, rotated_cells
 
     pts = np.array([[x, 0.0] for x in np.arange(0.0, 2.0, 0.05)])
     f = LikelihoodField((-3.0, -1.0), 0.05, 160, 40, 0.1)

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
-from backend.graph import GraphConfig, PoseGraph
-from backend.manhattan import ManhattanHeading, wall_direction, wrap_quarter
-from frontend import se2
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.manhattan import ManhattanHeading, wall_direction, wrap_quarter
+from kosmap.frontend import se2
 
 
 def room_scan(pose, rng, half=(3.0, 2.0), rotation=0.0, fov_deg=70.0, beams=320, noise=0.005) -> np.ndarray:

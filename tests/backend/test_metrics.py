@@ -7,9 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from backend import metrics as M
-from backend.trajio import read_g2o, read_tum, write_g2o, write_tum
-from frontend import se2
+from kosmap.backend import metrics as M
+from kosmap.backend.trajio import read_g2o, read_tum, write_g2o, write_tum
+from kosmap.frontend import se2
 
 
 def test_relations_metric_hand_computed(tmp_path):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from frontend.camera import rays
-from frontend.planes import PLANE_CLASSES, Planes
+from kosmap.frontend.camera import rays
+from kosmap.frontend.planes import PLANE_CLASSES, Planes
 
 WALL_CLASSES = {PLANE_CLASSES.index(c) for c in ("left", "right", "front")}
 

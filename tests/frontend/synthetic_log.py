@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transform, Transforms
+from kosmap.frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transform, Transforms
 
 DEPTH = "/kinect2/sd/image_depth_rect"
 INFO = "/kinect2/sd/camera_info"
@@ -38,7 +38,7 @@ def records(n: int = 5, seed: int = 0, width: int = 64, height: int = 48) -> lis
 
 def write_mcap(recs, path):
     """The records, in order, as an MCAP at `path` (each on its own topic); returns the path."""
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs.writer import McapWriter
 
     with McapWriter(path) as w:
         for rec in recs:
@@ -48,8 +48,8 @@ def write_mcap(recs, path):
 
 def copy_log(src, dst, keep):
     """A log holding the records of `src` for which keep(record) holds."""
-    from frontend.logs import open_log
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.writer import McapWriter
 
     with open_log(src) as log, McapWriter(dst) as w:
         for rec in log.read(log.info().types()):

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import (DepthConfig, backproject, camera_axes, camera_for, camera_mount, depth_constraints,
+from kosmap.frontend.camera import (DepthConfig, backproject, camera_axes, camera_for, camera_mount, depth_constraints,
                              gravity_up, lookup_static, mount_transform, project)
-from frontend.records import CameraModel, Transform, Transforms
+from kosmap.frontend.records import CameraModel, Transform, Transforms
 
 
 def test_fov_fallback_is_geometric():

@@ -9,10 +9,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from frontend.logs import topics as T
-from frontend.logs.cdrfast import imu, odometry
-from frontend.logs.convert import imu_msg, odometry_msg, to_record, typestore
-from frontend.records import Imu, Odometry
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.logs.cdrfast import imu, odometry
+from kosmap.frontend.logs.convert import imu_msg, odometry_msg, to_record, typestore
+from kosmap.frontend.records import Imu, Odometry
 
 
 def _same(a, b) -> None:
@@ -78,8 +78,8 @@ def test_what_it_cannot_vouch_for_goes_to_rosbags():
 
 def test_mcap_reader_uses_it(tmp_path):
     """A log through McapLog: the same records either way (the reader's fast path is this module)."""
-    from frontend.logs import open_log
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.writer import McapWriter
 
     rng = np.random.default_rng(2)
     recs = [_imu(rng, "imu_link") for _ in range(30)]
@@ -99,11 +99,11 @@ def test_laser_scan_bytes_are_rosbags_bytes():
     """cdrfast.laser_scan writes the bytes rosbags serialises for convert.scan_msg: every frame_id length (so every
     padding before the floats), empty and long scans, intensities or none, ±inf and NaN ranges, a stamp before
     1970; and McapWriter writes them, read back as the same Scan."""
-    from frontend.logs import open_log
-    from frontend.logs.cdrfast import laser_scan
-    from frontend.logs.convert import scan_msg
-    from frontend.logs.writer import McapWriter
-    from frontend.records import Scan
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.cdrfast import laser_scan
+    from kosmap.frontend.logs.convert import scan_msg
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import Scan
 
     rng = np.random.default_rng(11)
     scans = []
@@ -143,9 +143,9 @@ def test_laser_scan_and_depth_image_equal_rosbags(frame):
     """LaserScan and depth Image decoded from the bytes give the records rosbags + to_record give, for every
     padding after the frame id and (Image) after the encoding; rosbags' own bytes in, so every field and length
     is as a ROS driver writes it."""
-    from frontend.logs.cdrfast import image, scan
-    from frontend.logs.convert import image_msg, scan_msg
-    from frontend.records import DepthFrame, Scan
+    from kosmap.frontend.logs.cdrfast import image, scan
+    from kosmap.frontend.logs.convert import image_msg, scan_msg
+    from kosmap.frontend.records import DepthFrame, Scan
 
     rng = np.random.default_rng(len(frame) + 11)
     for n, m in ((0, 0), (1, 0), (541, 541), (1081, 0), (7, 7)):
@@ -170,9 +170,9 @@ def test_laser_scan_and_depth_image_equal_rosbags(frame):
 
 
 def test_scans_and_images_it_cannot_vouch_for_go_to_rosbags():
-    from frontend.logs.cdrfast import image, scan
-    from frontend.logs.convert import image_msg, scan_msg
-    from frontend.records import DepthFrame, Scan
+    from kosmap.frontend.logs.cdrfast import image, scan
+    from kosmap.frontend.logs.convert import image_msg, scan_msg
+    from kosmap.frontend.records import DepthFrame, Scan
 
     s = Scan(5, np.ones(10, np.float32), -1.0, 0.1, 0.1, 10.0, "laser", "/scan")
     raw = _cdr(scan_msg(typestore(2), s), T.LASER_SCAN)

@@ -7,13 +7,13 @@ import struct
 
 import pytest
 
-from frontend.errors import LogError
-from frontend.logs import open_log
-from frontend.logs.writer import BagWriter, McapWriter
-from frontend.records import Odometry, Scan
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs.writer import BagWriter, McapWriter
+from kosmap.frontend.records import Odometry, Scan
 from tests.conftest import require_data
 from tests.frontend.synthetic_log import records
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 def _laser_bag(path, n: int = 40, chunk: int = 32 << 10):
@@ -196,7 +196,7 @@ def test_real_bag_cut_in_half_warns(tmp_path):
 
 
 def test_a_cut_mcap_says_so_even_after_another_warning(tmp_path):
-    from frontend.records import Imu
+    from kosmap.frontend.records import Imu
 
     import numpy as np
 

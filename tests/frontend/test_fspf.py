@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import depth_constraints
-from frontend.fspf import FspfConfig, filter_planes, fspf_plus
-from frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES, RAISED, RIGHT, SLANTED, FrameStats,
+from kosmap.frontend.camera import depth_constraints
+from kosmap.frontend.fspf import FspfConfig, filter_planes, fspf_plus
+from kosmap.frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES, RAISED, RIGHT, SLANTED, FrameStats,
                              Planes, classify, fit_plane, merge_planes, ransac_plane)
-from frontend.records import CameraModel
+from kosmap.frontend.records import CameraModel
 from tests.frontend.plane_truth import recovered, score
-from tools.boxroom import frame, noise_sigma
+from kosmap.tools.boxroom import frame, noise_sigma
 
 POSE = (0.6, 0.3, 0.0)
 WALLS = (3, 4, 5, 6)
@@ -208,8 +208,8 @@ def test_merge_two_patches_of_one_wall():
 
 
 def test_compiled_classification_matches_numpy():
-    from frontend.fspf import _Classes
-    from tools.boxroom import default_mount
+    from kosmap.frontend.fspf import _Classes
+    from kosmap.tools.boxroom import default_mount
 
     rng = np.random.default_rng(0)
     n = rng.normal(size=(2000, 3))

@@ -6,11 +6,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import depth_constraints
-from frontend.fspf import FspfConfig, fspf, fspf_plus
+from kosmap.frontend.camera import depth_constraints
+from kosmap.frontend.fspf import FspfConfig, fspf, fspf_plus
 from tests.frontend.plane_truth import recovered, score
-from tools.simulate import DepthNoise, World, camera_mount, kinect_v2_model, render_depth
-from tools.simulate.render import pose_matrix
+from kosmap.tools.simulate import DepthNoise, World, camera_mount, kinect_v2_model, render_depth
+from kosmap.tools.simulate.render import pose_matrix
 
 pytestmark = pytest.mark.slow
 

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from frontend.errors import LogError
-from frontend.logs.images import ImageFolder, read_camera_file
-from frontend.records import CameraModel, DepthFrame
-from tools.commands.planes import normal_quaternions
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs.images import ImageFolder, read_camera_file
+from kosmap.frontend.records import CameraModel, DepthFrame
+from kosmap.tools.commands.planes import normal_quaternions
 
 
 def test_camera_files(tmp_path):

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from rosbags.highlevel import AnyReader
 
-from frontend.errors import TopicError
-from frontend.logs import detect_topics, open_log
-from frontend.logs.topics import IMU, ODOMETRY, TopicsConfig
-from frontend.logs.writer import BagWriter, McapWriter, open_writer
-from frontend.records import Imu, Odometry
+from kosmap.frontend.errors import TopicError
+from kosmap.frontend.logs import detect_topics, open_log
+from kosmap.frontend.logs.topics import IMU, ODOMETRY, TopicsConfig
+from kosmap.frontend.logs.writer import BagWriter, McapWriter, open_writer
+from kosmap.frontend.records import Imu, Odometry
 
 
 def _samples(n: int = 50, seed: int = 3, topic: str = "/imu") -> list[Imu]:
@@ -123,7 +123,7 @@ def test_non_finite_gyro_samples_are_skipped_with_one_warning(tmp_path, suffix):
 
 
 def test_kosmap_info_shows_the_imu_and_refuses_a_wrong_imu_topic(tmp_path, capsys):
-    from tools.cli import main
+    from kosmap.tools.cli import main
 
     path = tmp_path / "imu.mcap"
     with open_writer(path) as w:
@@ -139,6 +139,6 @@ def test_kosmap_info_shows_the_imu_and_refuses_a_wrong_imu_topic(tmp_path, capsy
 
 
 def _scan():
-    from frontend.records import Scan
+    from kosmap.frontend.records import Scan
 
     return Scan(1_700_000_000_000_000_000, np.full(10, 2.0, np.float32), -0.5, 0.1, 0.1, 30.0, "laser", "/scan")

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from frontend.kos import OBSTACLE, Bearings, KosAccumulator, KosConfig, bearings_for, camera_view, fuse_with_laser, in_view
-from frontend.records import CameraModel, Scan, Transform
+from kosmap.frontend.kos import OBSTACLE, Bearings, KosAccumulator, KosConfig, bearings_for, camera_view, fuse_with_laser, in_view
+from kosmap.frontend.records import CameraModel, Scan, Transform
 
 CAM = CameraModel.from_fov(512, 424, math.radians(70.6), math.radians(60.0))
 

@@ -8,12 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from frontend.camera import DepthConfig, backproject, depth_constraints
-from frontend.fspf import FspfConfig, filter_planes
-from frontend.kos import KosAccumulator, KosConfig, _pixel_table, bearings_for, camera_view
-from tools.simulate.api import render_depth
-from tools.simulate.render import camera_mount, kinect_v2_model
-from tools.simulate.world import World
+from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints
+from kosmap.frontend.fspf import FspfConfig, filter_planes
+from kosmap.frontend.kos import KosAccumulator, KosConfig, _pixel_table, bearings_for, camera_view
+from kosmap.tools.simulate.api import render_depth
+from kosmap.tools.simulate.render import camera_mount, kinect_v2_model
+from kosmap.tools.simulate.world import World
 
 ROOM = World.load("room")
 CAM = kinect_v2_model()

@@ -8,14 +8,14 @@ import math
 import numpy as np
 import pytest
 
-from frontend.depthstream import DepthItem
-from frontend.kos import OBSTACLE, KosConfig, bearings_for, in_view
-from frontend.kosframe import kos_frame, merge_cameras
-from frontend.camera import DepthConfig
-from frontend.fspf import FspfConfig
-from tools.simulate.api import render_depth, render_laser
-from tools.simulate.render import LaserModel, camera_mount, cast_rays, kinect_v2_model, laser_mount
-from tools.simulate.world import World
+from kosmap.frontend.depthstream import DepthItem
+from kosmap.frontend.kos import OBSTACLE, KosConfig, bearings_for, in_view
+from kosmap.frontend.kosframe import kos_frame, merge_cameras
+from kosmap.frontend.camera import DepthConfig
+from kosmap.frontend.fspf import FspfConfig
+from kosmap.tools.simulate.api import render_depth, render_laser
+from kosmap.tools.simulate.render import LaserModel, camera_mount, cast_rays, kinect_v2_model, laser_mount
+from kosmap.tools.simulate.world import World
 
 ROOM = World.load("room")
 CAM = kinect_v2_model()

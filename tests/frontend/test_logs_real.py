@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.logs import detect_topics, open_log
-from frontend.records import Odometry, Scan, Transforms
+from kosmap.frontend.logs import detect_topics, open_log
+from kosmap.frontend.records import Odometry, Scan, Transforms
 from tests.conftest import require_data
 
 pytestmark = pytest.mark.data

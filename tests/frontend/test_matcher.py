@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 from scipy.ndimage import distance_transform_edt
 
-from frontend import se2
-from frontend.likelihood import LikelihoodField, densify
-from frontend.matcher import SearchGrids, correlative_search, gauss_newton, mean_score
-from frontend.odometry import WheelOdometry, prior_weight_matrix, voxel_filter
+from kosmap.frontend import se2
+from kosmap.frontend.likelihood import LikelihoodField, densify
+from kosmap.frontend.matcher import SearchGrids, correlative_search, gauss_newton, mean_score
+from kosmap.frontend.odometry import WheelOdometry, prior_weight_matrix, voxel_filter
 
 
 def _room_points(rng: np.random.Generator, n: int = 400) -> np.ndarray:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 
-from frontend.numbacache import numba_cache_dir
+from kosmap.frontend.numbacache import numba_cache_dir
 
 
 def test_numbas_own_places_are_kept_when_writable(tmp_path):
@@ -31,7 +31,7 @@ def test_an_install_the_user_cannot_write_gets_a_temp_folder(tmp_path, monkeypat
 
 
 def test_the_temp_folder_is_private_and_one_another_user_could_have_planted_is_not_used(tmp_path):
-    from frontend.numbacache import private_dir
+    from kosmap.frontend.numbacache import private_dir
 
     mine = tmp_path / "kosmap-numba-cache-1"
     assert private_dir(str(mine)) == str(mine) and (mine.stat().st_mode & 0o777) == 0o700

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from mcap.writer import Writer
 
-from frontend.logs import open_log
-from frontend.logs import topics as T
-from frontend.logs.cdrfast import imu, imu_batch, odometry, odometry_batch
-from frontend.logs.convert import imu_msg, odometry_msg, scan_msg, typestore
-from frontend.logs.writer import McapWriter, open_writer
-from frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs import topics as T
+from kosmap.frontend.logs.cdrfast import imu, imu_batch, odometry, odometry_batch
+from kosmap.frontend.logs.convert import imu_msg, odometry_msg, scan_msg, typestore
+from kosmap.frontend.logs.writer import McapWriter, open_writer
+from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan
 from tests.frontend.test_cdrfast import _same
 
 T0 = 1_700_000_000_000_000_000
@@ -160,7 +160,7 @@ def _write_out_of_order(path, rng, late_s: float, chunk_size: int) -> None:
         if i % 3 == 0:
             recs.append(_odom(rng, i // 3))
     ts = typestore(2)
-    from frontend.logs import convert
+    from kosmap.frontend.logs import convert
 
     with McapWriter(path, chunk_size=chunk_size) as w:
         for k, r in enumerate(recs):
@@ -190,7 +190,7 @@ def test_samples_come_in_log_time_order_like_read(tmp_path, late_s, chunk_size, 
 def test_chunks_in_sequence():
     from types import SimpleNamespace as C
 
-    from frontend.logs.mcap import _chunks_in_sequence
+    from kosmap.frontend.logs.mcap import _chunks_in_sequence
 
     def ci(a, b, off):
         return C(message_start_time=a, message_end_time=b, chunk_start_offset=off)
@@ -228,7 +228,7 @@ def test_one_topic_on_two_channels_is_read_record_by_record(tmp_path):
 def test_a_frame_id_that_is_not_utf8_is_left_to_rosbags(tmp_path):
     """Bytes that are not UTF-8 in a frame id: the direct decoders decline, and the reader warns and skips the message
     as it does for anything rosbags cannot decode (it ended the read with a UnicodeDecodeError)."""
-    from frontend.logs.cdrfast import scan
+    from kosmap.frontend.logs.cdrfast import scan
 
     s = Scan(T0, np.ones(10, np.float32), -1.0, 0.1, 0.1, 10.0, "laser", "/scan")
     ts = typestore(2)

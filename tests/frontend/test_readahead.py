@@ -9,10 +9,10 @@ import time
 import numpy as np
 import pytest
 
-from frontend.errors import LogError
-from frontend.logs import open_log
-from frontend.logs.readahead import read_ahead
-from frontend.logs.writer import McapWriter
+from kosmap.frontend.errors import LogError
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs.readahead import read_ahead
+from kosmap.frontend.logs.writer import McapWriter
 from tests.frontend.synthetic_log import records
 
 
@@ -145,7 +145,7 @@ def test_damage_is_a_log_error_or_a_warning(tmp_path, compression):
 def test_mcap_order_is_log_time_order_when_written_out_of_order(tmp_path, late_s):
     from mcap.reader import make_reader
 
-    from frontend.logs import convert
+    from kosmap.frontend.logs import convert
 
     rng = np.random.default_rng(3)
     recs = records(n=60, width=32, height=24)
@@ -181,7 +181,7 @@ def test_log_time_order_equals_mcaps(tmp_path, topics, compression):
     from mcap.reader import make_reader
     from mcap.writer import CompressionType, Writer
 
-    from frontend.logs.mcap import _in_log_time_order
+    from kosmap.frontend.logs.mcap import _in_log_time_order
 
     rng = np.random.default_rng(8)
     p = tmp_path / "ties.mcap"
@@ -215,7 +215,7 @@ def test_a_chunk_that_does_not_parse_is_an_mcap_error():
     import zstandard
     from mcap.exceptions import McapError
 
-    from frontend.logs.mcap import _chunk_messages
+    from kosmap.frontend.logs.mcap import _chunk_messages
 
     def chunk(records: bytes, compression: str = "", packed: bytes | None = None, size: int | None = None) -> bytes:
         body = records if packed is None else packed

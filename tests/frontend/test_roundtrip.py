@@ -8,9 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from frontend.logs import convert, open_log
-from frontend.logs.writer import BagWriter, McapWriter, open_writer
-from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transforms
+from kosmap.frontend.logs import convert, open_log
+from kosmap.frontend.logs.writer import BagWriter, McapWriter, open_writer
+from kosmap.frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transforms
 from tests.frontend.synthetic_log import records
 
 

@@ -7,9 +7,9 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from frontend.logs import open_log
-from frontend.logs.writer import open_writer
-from frontend.records import DepthFrame
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs.writer import open_writer
+from kosmap.frontend.records import DepthFrame
 
 W, H = 512, 424
 

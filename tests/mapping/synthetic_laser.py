@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from frontend import se2
-from frontend.records import Odometry, Scan, Transform, Transforms
+from kosmap.frontend import se2
+from kosmap.frontend.records import Odometry, Scan, Transform, Transforms
 
 T0 = 1_700_000_000_000_000_000
 

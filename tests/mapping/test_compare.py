@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapping.compare import CompareConfig, align, apply, compare, occupied_points, overlay_picture, se2
-from mapping.grid import OccupancyGrid
+from kosmap.mapping.compare import CompareConfig, align, apply, compare, occupied_points, overlay_picture, se2
+from kosmap.mapping.grid import OccupancyGrid
 from tests.mapping.worlds import room, wall_grid
 
 # walls off the cell boundaries, so that rasterising the moved world is not ambiguous by a whole cell
@@ -114,7 +114,7 @@ def test_free_space_agreement_and_overlay_colours():
 def test_empty_map_is_a_clear_error():
     a = wall_grid(WORLD, 0.05)
     empty = OccupancyGrid(np.zeros_like(a.data), a.resolution, a.origin)
-    from mapping.compare import CompareError
+    from kosmap.mapping.compare import CompareError
 
     with pytest.raises(CompareError, match="wall cells"):
         compare(empty, a)
@@ -125,8 +125,8 @@ def test_thick_blueprint_walls_count_by_their_faces():
     matches the plan; scoring every occupied cell would punish it for what it can never see."""
     import cv2
 
-    from mapping.grid import build_grid
-    from mapping.mapio import outside_unknown
+    from kosmap.mapping.grid import build_grid
+    from kosmap.mapping.mapio import outside_unknown
     from tests.mapping.worlds import scan_at
 
     poses = np.array([(x, y, 0.0) for x, y in [(1.5, 1.5), (1.5, 5.5), (5, 2), (8.5, 3), (5, 4.5), (6, 6.5), (2, 3.5)]])

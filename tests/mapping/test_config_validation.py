@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import pytest
 
-from frontend.errors import ConfigError
-from frontend.kos import KosConfig
-from mapping.config import load_config
-from tools.cli import main
+from kosmap.frontend.errors import ConfigError
+from kosmap.frontend.kos import KosConfig
+from kosmap.mapping.config import load_config
+from kosmap.tools.cli import main
 
 
 def one_line_error(capsys, *argv: str) -> str:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.deskew import deskew_points, sensor_twist
-from mapping.grid import GridBuilder, GridConfig
-from frontend.records import Scan
+from kosmap.frontend.deskew import deskew_points, sensor_twist
+from kosmap.mapping.grid import GridBuilder, GridConfig
+from kosmap.frontend.records import Scan
 from tests.mapping.worlds import raycast, room
 
 N, FOV, SCAN_TIME = 1081, np.radians(270.0), 0.025  # Hokuyo UTM-30LX: 1081 beams, 40 Hz revolution
@@ -116,7 +116,7 @@ def test_grid_of_a_spinning_robot_is_sharper_deskewed():
 def test_slam_points_are_deskewed_with_the_wheel_odometrys_twist():
     """scan_to_points (the SLAM front end's points) with the twist WheelOdometry.twist_at reads from 50 Hz
     odometry of a robot turning at 45 °/s and driving at 0.4 m/s: every point on the walls within 2 mm."""
-    from frontend.odometry import WheelOdometry, scan_to_points
+    from kosmap.frontend.odometry import WheelOdometry, scan_to_points
 
     segs = room()
     v, w = 0.4, np.radians(45.0)
@@ -151,11 +151,11 @@ def test_build_deskews_a_spinning_lasers_scans(tmp_path):
     270°) while the robot spins at 90 °/s: with de-skewing (the default) the laser SLAM and its map are closer to
     the truth than with [odometry] deskew and [grid] deskew off. Measured (seed 3): ATE 0.008 vs 0.016 m, map
     precision at 0.05 m 0.85 vs 0.73."""
-    from mapping.config import Config
-    from mapping.mapio import write_map_server
-    from mapping.pipeline import build
-    from tools.simulate import SimConfig, load_world, simulate
-    from tools.simulate.world import path_from_dict
+    from kosmap.mapping.config import Config
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.mapping.pipeline import build
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate.world import path_from_dict
 
     w = load_world("room")
     bp = write_map_server(w.blueprint(0.05), tmp_path / "bp.yaml", ".png")

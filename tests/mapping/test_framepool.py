@@ -7,12 +7,12 @@ import sys
 import numpy as np
 import pytest
 
-from frontend.camera import DepthConfig, config_mount
-from frontend.depthstream import DepthItem
-from frontend.fspf import FspfConfig
-from frontend.kos import KosConfig, bearings_for
-from frontend.records import CameraModel
-from mapping.framepool import FramePool
+from kosmap.frontend.camera import DepthConfig, config_mount
+from kosmap.frontend.depthstream import DepthItem
+from kosmap.frontend.fspf import FspfConfig
+from kosmap.frontend.kos import KosConfig, bearings_for
+from kosmap.frontend.records import CameraModel
+from kosmap.mapping.framepool import FramePool
 
 
 def _items(n: int) -> list[DepthItem]:
@@ -110,7 +110,7 @@ def test_a_worker_that_dies_is_a_clear_error_not_a_hang():
 
     import pytest
 
-    from frontend.errors import KosmapError
+    from kosmap.frontend.errors import KosmapError
 
     items = _items(6)
     fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
@@ -142,7 +142,7 @@ def _raise_odd(*args, **kwargs):
 def test_an_error_that_does_not_unpickle_comes_back_as_its_text_and_close_never_waits(monkeypatch):
     import pytest
 
-    import mapping.framepool as fp
+    import kosmap.mapping.framepool as fp
 
     items = _items(5)
     fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
@@ -195,7 +195,7 @@ def _slow_second_init(configs, parent_pid, count):
     """The pool's worker start, the second worker's half a second late: the first then answers both pings."""
     import time
 
-    import mapping.framepool as fp
+    import kosmap.mapping.framepool as fp
 
     with count.get_lock():
         count.value += 1
@@ -212,7 +212,7 @@ def test_every_frame_loop_runs_before_the_pool_is_used_so_close_never_hangs(monk
     import threading
     from concurrent.futures import ProcessPoolExecutor
 
-    import mapping.framepool as fp
+    import kosmap.mapping.framepool as fp
 
     count = mp.get_context("fork").Value("i", 0)
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.records import Scan
-from mapping.compare import CompareConfig, compare
-from mapping.grid import GridBuilder, GridConfig, build_grid
+from kosmap.frontend.records import Scan
+from kosmap.mapping.compare import CompareConfig, compare
+from kosmap.mapping.grid import GridBuilder, GridConfig, build_grid
 from tests.mapping.worlds import room, scan_at, wall_grid
 
 WORLD = room() + np.array([0.012, 0.017, 0.012, 0.017])
@@ -128,7 +128,7 @@ def test_memory_is_the_maps_not_the_logs():
 
 
 def test_bad_probability_config_is_rejected():
-    from frontend.errors import ConfigError
+    from kosmap.frontend.errors import ConfigError
 
     with pytest.raises(ConfigError, match="p_hit"):
         GridConfig(p_hit=0.4)
@@ -153,7 +153,7 @@ def test_numba_and_numpy_engines_give_the_same_map():
 def test_grid_set_keeps_one_grid_per_source():
     from dataclasses import replace
 
-    from mapping.grid import GridSet
+    from kosmap.mapping.grid import GridSet
 
     gs = GridSet(GridConfig(resolution=0.1), mounts={"/kos/level1": (0.3, 0.0, np.pi)})
     base = (4.0, 2.0, 0.5)
@@ -201,7 +201,7 @@ def test_a_map_below_the_scan_rate_deskews_each_scan_from_the_one_before():
     last scan integrated."""
     from dataclasses import replace
 
-    from frontend.deskew import sensor_twist
+    from kosmap.frontend.deskew import sensor_twist
 
     rng = np.random.default_rng(11)
     cfg = GridConfig(resolution=0.05, no_return_clear=3.0)

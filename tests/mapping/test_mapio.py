@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import yaml
 
-from mapping.grid import OccupancyGrid
-from mapping.mapio import (MapError, grid_picture, read_blueprint, read_map_server, write_grid_mcap, write_map_server,
+from kosmap.mapping.grid import OccupancyGrid
+from kosmap.mapping.mapio import (MapError, grid_picture, read_blueprint, read_map_server, write_grid_mcap, write_map_server,
                            write_png)
 
 
@@ -146,7 +146,7 @@ def test_png_picture_and_trajectory(tmp_path):
 def test_grid_into_mcap_reads_back(tmp_path):
     from mcap.reader import make_reader
 
-    from frontend.logs.convert import typestore
+    from kosmap.frontend.logs.convert import typestore
 
     g = _trinary_grid()
     g = OccupancyGrid(g.data, g.resolution, (1.0, 2.0, 0.3))

@@ -9,10 +9,10 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from backend.graph import GraphConfig
-from frontend.odometry import OdometryConfig, scan_to_points
-from mapping.pipeline import Spill
-from mapping.slam import Slam
+from kosmap.backend.graph import GraphConfig
+from kosmap.frontend.odometry import OdometryConfig, scan_to_points
+from kosmap.mapping.pipeline import Spill
+from kosmap.mapping.slam import Slam
 from tests.mapping.synthetic_laser import make_log
 
 
@@ -100,13 +100,13 @@ def test_the_spill_keeps_no_per_point_state(tmp_path):
 def test_a_republished_tf_static_is_kept_once(tmp_path):
     """A recorder may republish /tf_static every second: the build keeps (and writes) each distinct set once, not
     once per message for the whole run; the maps are those of the log with a single /tf_static."""
-    from frontend.logs import open_log
-    from frontend.logs.writer import McapWriter
-    from frontend.records import DepthFrame, Transforms
-    from mapping.config import load_config
-    from mapping.mapio import read_map_server
-    from mapping.pipeline import build
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import DepthFrame, Transforms
+    from kosmap.mapping.config import load_config
+    from kosmap.mapping.mapio import read_map_server
+    from kosmap.mapping.pipeline import build
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "room.mcap"
     simulate(load_world("room"), SimConfig(seed=2, duration=1.0), log)

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from mapping.compare import compare
-from mapping.grid import GridConfig, build_grid
+from kosmap.mapping.compare import compare
+from kosmap.mapping.grid import GridConfig, build_grid
 from tests.mapping.worlds import office, path_poses, scan_at, thick_blueprint, thick_walls
 
 CENTRES = office() + np.array([0.012, 0.017, 0.012, 0.017])  # 30 × 14 m, walls off the cell boundaries

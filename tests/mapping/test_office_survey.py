@@ -16,13 +16,13 @@ from __future__ import annotations
 
 import pytest
 
-from mapping.config import Config
-from mapping.pipeline import build
+from kosmap.mapping.config import Config
+from kosmap.mapping.pipeline import build
 
 
 @pytest.fixture(scope="module")
 def survey_run(tmp_path_factory):
-    from tools.commands.demo import demo_log
+    from kosmap.tools.commands.demo import demo_log
 
     d = tmp_path_factory.mktemp("survey")
     log, bp, _ = demo_log(cache=d, quiet=True, path="survey")  # what `kosmap demo --survey` maps

@@ -9,12 +9,12 @@ import signal
 
 import pytest
 
-from frontend.records import CameraModel, DepthFrame
-from mapping.config import load_config
-from mapping.outdir import MANIFEST, OutputError, check_out, claim
-from mapping.pipeline import BUILD_FILES, build
+from kosmap.frontend.records import CameraModel, DepthFrame
+from kosmap.mapping.config import load_config
+from kosmap.mapping.outdir import MANIFEST, OutputError, check_out, claim
+from kosmap.mapping.pipeline import BUILD_FILES, build
 from tests.frontend.synthetic_log import copy_log
-from tools.cli import main
+from kosmap.tools.cli import main
 
 SETS = ["build.depth_rate=0"]
 
@@ -22,7 +22,7 @@ SETS = ["build.depth_rate=0"]
 @pytest.fixture(scope="module")
 def laser_log(tmp_path_factory):
     """2.5 s of the simulated room, its laser, odometry and gyro only (a build of it takes about a second)."""
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     d = tmp_path_factory.mktemp("outdir")
     full = d / "room.mcap"
@@ -118,7 +118,7 @@ def test_a_failed_build_leaves_nothing_that_looks_like_a_result(laser_log, tmp_p
 
 @pytest.mark.slow
 def test_sigterm_stops_a_build_and_removes_what_it_wrote(laser_log, tmp_path, monkeypatch, capsys):
-    import mapping.pipeline as pipeline
+    import kosmap.mapping.pipeline as pipeline
 
     warm = pipeline._warm_grid
 
@@ -140,8 +140,8 @@ def test_sigterm_stops_a_build_and_removes_what_it_wrote(laser_log, tmp_path, mo
 def test_every_command_that_writes_a_folder_refuses_an_unusable_out_first(laser_log, tmp_path, capsys):
     import numpy as np
 
-    from mapping.grid import OccupancyGrid
-    from mapping.mapio import write_map_server
+    from kosmap.mapping.grid import OccupancyGrid
+    from kosmap.mapping.mapio import write_map_server
 
     f = tmp_path / "afile"
     f.write_text("mine")
@@ -190,8 +190,8 @@ def test_another_commands_folder_is_named_in_the_refusal(tmp_path):
 
 
 def test_slam_scan_and_compare_keep_to_their_own_files_and_folders(laser_log, tmp_path, capsys):
-    from tools.commands.compare import COMPARE_FILES
-    from tools.commands.slam import SLAM_FILES
+    from kosmap.tools.commands.compare import COMPARE_FILES
+    from kosmap.tools.commands.slam import SLAM_FILES
 
     out = tmp_path / "slam"
     out.mkdir()

@@ -12,14 +12,14 @@ import tomllib
 import numpy as np
 import pytest
 
-from backend.trajio import read_tum
-from frontend.errors import ConfigError, TopicError
-from frontend.logs import open_log
-from frontend.logs.writer import McapWriter
-from frontend.records import CameraModel, DepthFrame, Scan
-from mapping.config import load_config
-from mapping.mapio import read_map_server, write_map_server
-from mapping.pipeline import Progress, build
+from kosmap.backend.trajio import read_tum
+from kosmap.frontend.errors import ConfigError, TopicError
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.records import CameraModel, DepthFrame, Scan
+from kosmap.mapping.config import load_config
+from kosmap.mapping.mapio import read_map_server, write_map_server
+from kosmap.mapping.pipeline import Progress, build
 from tests.frontend.synthetic_log import copy_log
 
 # lean settings for seconds-long logs: the room's 11 m loop from its start, a cloud every 0.5 s in the MCAP
@@ -28,7 +28,7 @@ SETS = ["build.mcap_planes_period=0.5", "build.depth_rate=0"]  # every frame of 
 
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     d = tmp_path_factory.mktemp("pipeline")
     world = load_world("room")
@@ -208,9 +208,9 @@ def test_an_interrupted_run_writes_what_is_done_marked_partial(logs, tmp_path, w
 def test_two_cameras_give_identical_steps_serial_and_parallel(tmp_path):
     """The KOS stream of `kosmap scan` and `kosmap build`: front and rear camera merged per step, fused with the
     nearest laser scan, the same whether the frames run here or in a pool (whose results arrive late)."""
-    from mapping.config import Config
-    from mapping.kosscan import ScanRun, kos_steps
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.mapping.config import Config
+    from kosmap.mapping.kosscan import ScanRun, kos_steps
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "two.mcap"
     simulate(load_world("room"), SimConfig(seed=6, duration=1.0, rear_camera=True), log)
@@ -228,8 +228,8 @@ def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     """The comparisons are submitted as their maps arrive (so the workers compare while the MCAP is written), once
     each, and come back in the fixed order of the pairs whatever the order the maps finished in. The maps made on
     the laser SLAM's poses (fused, KOS at the laser's poses) go with the laser map's job: its alignment is theirs."""
-    from mapping.grid import OccupancyGrid
-    from mapping.pipeline import _Compares, _Done
+    from kosmap.mapping.grid import OccupancyGrid
+    from kosmap.mapping.pipeline import _Compares, _Done
 
     submitted = []
 
@@ -282,7 +282,7 @@ def test_chunks_longer_than_the_odometry_wait_give_reads_inputs(logs, tmp_path, 
     (1.25 s here; a 5 Hz Kinect log's 4 MB chunks hold ~1.8 s) the log's "now" must still stand where `read` has it,
     or scans near a chunk's end time out before their odometry (in the next chunk) is read: the same trajectories as
     a build reading record by record, serial and parallel."""
-    from frontend.logs.mcap import McapLog
+    from kosmap.frontend.logs.mcap import McapLog
 
     size = sum(c.uncompressed_size for c in McapLog(logs["full"])._summary.chunk_indexes)
     long = tmp_path / "long.mcap"

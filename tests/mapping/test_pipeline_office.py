@@ -13,13 +13,13 @@ from __future__ import annotations
 
 import pytest
 
-from mapping.config import Config
-from mapping.pipeline import build
+from kosmap.mapping.config import Config
+from kosmap.mapping.pipeline import build
 
 
 @pytest.fixture(scope="module")
 def office_run(tmp_path_factory):
-    from tools.commands.demo import demo_log
+    from kosmap.tools.commands.demo import demo_log
 
     cache = tmp_path_factory.mktemp("office")
     log, bp, _ = demo_log(cache=cache, quiet=True)

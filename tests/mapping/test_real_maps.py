@@ -6,10 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.logs import open_log
-from frontend.records import Odometry, Scan, Transforms
-from mapping.compare import CompareConfig, align, apply, compare, occupied_points, se2
-from mapping.grid import GridConfig, build_grid
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.records import Odometry, Scan, Transforms
+from kosmap.mapping.compare import CompareConfig, align, apply, compare, occupied_points, se2
+from kosmap.mapping.grid import GridConfig, build_grid
 
 
 def _intel(data_dir, n_scans=400):

@@ -9,10 +9,10 @@ import math
 
 import pytest
 
-from mapping.report import map_warnings, summary_caption
+from kosmap.mapping.report import map_warnings, summary_caption
 from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -75,7 +75,7 @@ def test_map_warnings_name_a_kos_level_without_obstacles_only():
 def test_a_level_the_camera_never_sees_is_warned_in_the_console_and_the_report(tmp_path, capsys):
     """The room's camera at 1 m looking level sees at most ~3.6 m up (4.5 m × tan 30°); 5 m passes the config only
     with a higher obstacle scan, and its map must not pass for open floor."""
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "room.mcap"
     simulate(load_world("room"), SimConfig(seed=2, duration=1.5), log)

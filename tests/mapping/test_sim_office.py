@@ -11,10 +11,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.logs import open_log
-from frontend.records import Odometry, Scan, Transforms
-from mapping.compare import CompareConfig, compare
-from mapping.grid import GridConfig, build_grid
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.records import Odometry, Scan, Transforms
+from kosmap.mapping.compare import CompareConfig, compare
+from kosmap.mapping.grid import GridConfig, build_grid
 
 EVERY_ROOM = [  # south rooms from the south corridor, east rooms, north rooms, west rooms, open office, both labs
     (6, 6), (6.5, 6), (6.5, 2.5), (6.5, 6), (12, 6), (12, 4), (12, 6), (20, 6), (20, 2.5), (20, 6), (28, 6), (28, 2.5),
@@ -47,8 +47,8 @@ def read_laser_and_truth(path, scan_topic="/scan", gt_topic="/ground_truth/odom"
 
 @pytest.fixture(scope="module")
 def office(tmp_path_factory):
-    sim = pytest.importorskip("tools.simulate")
-    from tools.simulate.world import PathSpec
+    sim = pytest.importorskip("kosmap.tools.simulate")
+    from kosmap.tools.simulate.world import PathSpec
 
     world = sim.World.load("office")
     cfg = sim.SimConfig(seed=1, laser_rate=2.0, laser_beams=541, depth_rate=0.01, depth_width=16, depth_height=12,

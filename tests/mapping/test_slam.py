@@ -8,13 +8,13 @@ import json
 import numpy as np
 import pytest
 
-from backend.graph import GraphConfig
-from backend.metrics import ate
-from frontend.logs.writer import McapWriter
-from frontend.odometry import OdometryConfig, scan_points_base
-from frontend.records import Scan
-from mapping.config import Config
-from mapping.slam import Slam, evaluate, run_slam, save_run
+from kosmap.backend.graph import GraphConfig
+from kosmap.backend.metrics import ate
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.odometry import OdometryConfig, scan_points_base
+from kosmap.frontend.records import Scan
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import Slam, evaluate, run_slam, save_run
 from tests.mapping.synthetic_laser import make_log, records
 
 
@@ -81,7 +81,7 @@ def test_log_file_end_to_end(log, tmp_path):
     assert m["ate"]["rmse"] <= 0.05, m["ate"]
     assert m["loop_precision_gt"]["precision"] >= 0.9
     assert any("fewer than" in w for w in r.warnings)
-    from mapping.slam import build_map
+    from kosmap.mapping.slam import build_map
 
     paths = save_run(r, tmp_path / "out", cfg, m, build_map(r, cfg.grid))
     doc = json.loads(paths["metrics"].read_text())
@@ -90,7 +90,7 @@ def test_log_file_end_to_end(log, tmp_path):
 
 
 def test_kos_source_needs_depth_frames(log, tmp_path):
-    from frontend.errors import TopicError
+    from kosmap.frontend.errors import TopicError
     from tests.frontend.synthetic_log import write_mcap
 
     path = write_mcap(records(log), tmp_path / "laser_only.mcap")

@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from backend.graph import GraphConfig
-from backend.metrics import ate, rpe
-from frontend.logs.writer import McapWriter
-from frontend.odometry import OdometryConfig, scan_points_base
-from frontend.records import Imu
-from mapping.config import Config
-from mapping.slam import KOS_FRONTEND, Slam, evaluate, run_slam, summary
+from kosmap.backend.graph import GraphConfig
+from kosmap.backend.metrics import ate, rpe
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.odometry import OdometryConfig, scan_points_base
+from kosmap.frontend.records import Imu
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import KOS_FRONTEND, Slam, evaluate, run_slam, summary
 from tests.mapping.synthetic_laser import make_log, records
 
 SCALE = 0.03  # the injected wheel-odometry scale error

@@ -8,15 +8,15 @@ from __future__ import annotations
 
 import pytest
 
-from mapping.config import Config
-from mapping.slam import evaluate, run_slam, summary
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import evaluate, run_slam, summary
 
 
 def _office(tmp_path_factory, seed: int, duration: float | None = None):
     """The office simulated (the first `duration` s, or all of it): 10 Hz depth at half resolution, no laser; the
     default IMU (200 Hz, 0.005 °/s/√Hz, turn-on bias, bias walk) and per-wheel odometry scale errors."""
-    from tools.simulate import SimConfig, load_world, simulate
-    from tools.simulate.log import simulation_truth
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate.log import simulation_truth
 
     log = tmp_path_factory.mktemp(f"office{seed}") / "office.mcap"
     cfg = SimConfig(seed=seed, depth_rate=10.0, depth_width=256, depth_height=212, laser=False, compression="lz4",

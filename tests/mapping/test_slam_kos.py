@@ -7,12 +7,12 @@ import json
 
 import pytest
 
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.fixture(scope="module")
 def room_log(tmp_path_factory):
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path_factory.mktemp("kos") / "room.mcap"
     # 30 s, 10 Hz depth at half resolution (same 70.6° view), no laser: small and quick; seeded

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from mapping.config import Config
-from mapping.slam import evaluate, run_slam
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import evaluate, run_slam
 
 
 @pytest.mark.slow

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import pytest
 
-from mapping.config import Config
-from mapping.slam import evaluate, run_slam
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import evaluate, run_slam
 
 
 @pytest.mark.slow
 def test_simulated_office_laser_log(tmp_path):
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "office.mcap"
     # the depth camera is not used here: a tiny, rare depth image keeps the log small and quick to write

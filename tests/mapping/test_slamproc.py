@@ -9,12 +9,12 @@ import signal
 import numpy as np
 import pytest
 
-from frontend.errors import KosmapError
-from frontend.records import Odometry
-from mapping.config import load_config
-from mapping.pipeline import SlamFeed
-from mapping.slam import Slam
-from mapping.slamproc import RemoteFeed, _events
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.records import Odometry
+from kosmap.mapping.config import load_config
+from kosmap.mapping.pipeline import SlamFeed
+from kosmap.mapping.slam import Slam
+from kosmap.mapping.slamproc import RemoteFeed, _events
 
 
 def _corridor_scan(x: float, rng) -> np.ndarray:
@@ -171,7 +171,7 @@ def test_advance_to_the_end_is_never_merged_away():
 
 
 def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with_its_parent_goes_too(tmp_path):
-    from mapping.slamproc import SlamProcessError
+    from kosmap.mapping.slamproc import SlamProcessError
 
     remote = RemoteFeed(_feed(), "laser")
     try:
@@ -212,7 +212,7 @@ def test_samples_go_as_arrays_and_give_the_in_process_result():
     """Wheel and gyro samples reach the child as numbers in arrays (not a pickled tuple or record each), replayed in
     their place among the scans: with a gyro at 4× the scan rate and batches cut mid-step, SLAM gets exactly what
     it gets in this process."""
-    from frontend.records import Imu
+    from kosmap.frontend.records import Imu
 
     def calls():
         for name, args in _calls():
@@ -248,7 +248,7 @@ def test_scans_released_by_the_odometry_timeout_get_the_in_process_result():
     """Odometry whose stamps lag the scans by 1.2 s (an unsynced clock): every scan is handed to SLAM by the 1 s
     timeout, with the samples read by then. Batches cut anywhere must replay the samples exactly in their place
     among the scans and advances, or the remote SLAM would see samples read later and differ."""
-    from frontend.records import Imu
+    from kosmap.frontend.records import Imu
 
     def calls():
         rng = np.random.default_rng(4)
@@ -282,7 +282,7 @@ def test_scans_released_by_the_odometry_timeout_get_the_in_process_result():
 def test_samples_in_columns_give_the_per_sample_result():
     """wheel_samples / gyro_samples (an OdometrySamples' or ImuSamples' columns, what the build hands over for a
     stretch of the log) give exactly what one call per sample gives, in this process and in a SLAM process."""
-    from frontend.records import Imu
+    from kosmap.frontend.records import Imu
 
     def per_sample():
         for name, args in _calls():

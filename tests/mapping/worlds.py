@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from frontend.records import Scan
-from mapping.grid import OccupancyGrid
+from kosmap.frontend.records import Scan
+from kosmap.mapping.grid import OccupancyGrid
 
 
 def room() -> np.ndarray:
@@ -107,7 +107,7 @@ def thick_walls(segs: np.ndarray, thickness: float) -> np.ndarray:
 def thick_blueprint(segs: np.ndarray, thickness: float, resolution: float, margin: float = 0.5) -> OccupancyGrid:
     """The plan of walls `thickness` wide: cells whose centre is within thickness/2 (+ half a cell, so thin walls
     stay continuous) of a centre line are walls; the outside (reached from the border) unknown, the inside free."""
-    from mapping.mapio import outside_unknown
+    from kosmap.mapping.mapio import outside_unknown
 
     lo = np.floor((segs.reshape(-1, 2).min(axis=0) - margin) / resolution) * resolution
     hi = segs.reshape(-1, 2).max(axis=0) + margin

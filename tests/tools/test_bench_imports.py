@@ -17,12 +17,12 @@ def test_there_are_benchmarks():
 
 @pytest.mark.parametrize("name", BENCHES)
 def test_benchmark_imports_and_has_main(name):
-    mod = importlib.import_module(f"tools.{name}")
+    mod = importlib.import_module(f"kosmap.tools.{name}")
     assert callable(getattr(mod, "main", None)), f"tools/{name}.py has no main()"
 
 
 def test_pipeline_bench_reads_the_hosts_steal():
-    from tools.bench_pipeline import _cpu_times, _steal_pct
+    from kosmap.tools.bench_pipeline import _cpu_times, _steal_pct
 
     assert _steal_pct([0] * 8, [10, 0, 5, 60, 0, 0, 5, 20]) == pytest.approx(20.0)
     assert _steal_pct([], [1] * 8) is None and _steal_pct([3] * 8, [3] * 8) is None
@@ -32,7 +32,7 @@ def test_pipeline_bench_reads_the_hosts_steal():
 
 
 def test_pipeline_bench_repeat_keeps_the_median_build_and_the_range(monkeypatch):
-    import tools.bench_pipeline as bp
+    import kosmap.tools.bench_pipeline as bp
 
     rtfs = iter([9.0, 12.5, 10.0])
 

@@ -6,13 +6,13 @@ import json
 
 import pytest
 
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    from mapping.mapio import write_map_server
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     d = tmp_path_factory.mktemp("buildcli")
     w = load_world("room")
@@ -38,8 +38,8 @@ def test_build_prints_the_headline_and_writes_the_report(room, tmp_path, capsys)
 
 
 def test_build_refuses_a_log_with_neither_depth_nor_laser(tmp_path, capsys):
-    from frontend.logs.writer import McapWriter
-    from frontend.records import Odometry
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import Odometry
 
     p = tmp_path / "odom_only.mcap"
     with McapWriter(p) as w:
@@ -79,7 +79,7 @@ def test_build_refuses_an_out_that_is_a_file(room, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_demo_simulates_once_then_reuses_the_log(tmp_path, capsys, monkeypatch):
-    from tools.commands import demo
+    from kosmap.tools.commands import demo
 
     monkeypatch.setattr(demo, "DEMO_WORLD", "room")
     monkeypatch.setattr(demo, "DEMO_SIM", {**demo.DEMO_SIM, "duration": 1.5})

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from frontend.logs import convert
-from frontend.logs.writer import McapWriter
+from kosmap.frontend.logs import convert
+from kosmap.frontend.logs.writer import McapWriter
 from tests.frontend.synthetic_log import DEPTH, records
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:
@@ -68,7 +68,7 @@ def test_empty_file(capsys, tmp_path):
 
 
 def test_truncated_mcap_yields_messages_before_the_damage(capsys, tmp_path):
-    from frontend.logs import open_log
+    from kosmap.frontend.logs import open_log
 
     full = tmp_path / "full.mcap"
     recs = records(n=40, width=128, height=96)
@@ -112,7 +112,7 @@ def test_image_data_length_mismatch(capsys, tmp_path):
 
 
 def test_mono16_is_read_as_16uc1(tmp_path):
-    from frontend.logs import open_log
+    from kosmap.frontend.logs import open_log
 
     ts = convert.typestore(2)
     msg = _image(ts, "mono16", 2, 2, 4, 8)

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from backend.trajio import read_g2o, read_tum
+from kosmap.backend.trajio import read_g2o, read_tum
 from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import pytest
 
 from tests.frontend.synthetic_log import write_mcap
 from tests.mapping.synthetic_laser import make_log, records
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.fixture(scope="module")
@@ -20,8 +20,8 @@ def ring(tmp_path_factory):
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
     """A short room log and its blueprint as a plain PNG (5 cm a pixel) beside its map_server YAML."""
-    from mapping.mapio import write_map_server
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     d = tmp_path_factory.mktemp("wording_room")
     w = load_world("room")

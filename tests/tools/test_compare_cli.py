@@ -8,10 +8,10 @@ import cv2
 import numpy as np
 import pytest
 
-from mapping.grid import OccupancyGrid
-from mapping.mapio import grid_picture, write_map_server
+from kosmap.mapping.grid import OccupancyGrid
+from kosmap.mapping.mapio import grid_picture, write_map_server
 from tests.mapping.worlds import room, wall_grid
-from tools.cli import main
+from kosmap.tools.cli import main
 
 WORLD = room() + np.array([0.012, 0.017, 0.012, 0.017])
 

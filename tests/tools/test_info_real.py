@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from tests.conftest import require_data
-from tools.cli import main
+from kosmap.tools.cli import main
 
 
 @pytest.mark.data

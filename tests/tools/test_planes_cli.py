@@ -10,11 +10,11 @@ import cv2
 import numpy as np
 import pytest
 
-from frontend.logs import open_log
-from frontend.logs.writer import McapWriter
-from frontend.records import CameraModel, DepthFrame, Transform, Transforms
-from tools.boxroom import default_mount, kinect_v2, render_depth, BoxRoom
-from tools.cli import main
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from kosmap.tools.boxroom import default_mount, kinect_v2, render_depth, BoxRoom
+from kosmap.tools.cli import main
 
 DEPTH, INFO = "/kinect2/sd/image_depth_rect", "/kinect2/sd/camera_info"
 

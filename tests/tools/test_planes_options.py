@@ -12,11 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
-from frontend.logs.writer import McapWriter
-from frontend.records import CameraModel, DepthFrame
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.records import CameraModel, DepthFrame
 from tests.conftest import require_data
-from tools.boxroom import BoxRoom, default_mount, render_depth
-from tools.cli import main
+from kosmap.tools.boxroom import BoxRoom, default_mount, render_depth
+from kosmap.tools.cli import main
 
 SLAMBOOK_K = (518.0, 519.0, 325.5, 253.5)  # the intrinsics tools.datasets gives slambook2_ch5_rgbd
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from frontend.camera import DepthConfig, depth_constraints
-from frontend.fspf import FspfConfig, filter_planes, fspf_plus
-from tools.datasets import DATASETS, iter_dataset, iter_samples
+from kosmap.frontend.camera import DepthConfig, depth_constraints
+from kosmap.frontend.fspf import FspfConfig, filter_planes, fspf_plus
+from kosmap.tools.datasets import DATASETS, iter_dataset, iter_samples
 
 pytestmark = pytest.mark.data
 

@@ -8,10 +8,10 @@ import json
 import numpy as np
 import pytest
 
-from frontend.logs import open_log
-from frontend.records import Scan
-from tools.cli import main
-from tools.simulate import SimConfig, load_world, simulate
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.records import Scan
+from kosmap.tools.cli import main
+from kosmap.tools.simulate import SimConfig, load_world, simulate
 
 
 @pytest.fixture(scope="module")
@@ -54,7 +54,7 @@ def test_scan_writes_levels_fused_csv_and_figures(room_log, tmp_path, capsys):
 
 
 def test_scan_refuses_a_log_without_depth(tmp_path, capsys):
-    from frontend.logs.writer import McapWriter
+    from kosmap.frontend.logs.writer import McapWriter
     from tests.frontend.synthetic_log import records
 
     p = tmp_path / "laser_only.mcap"
@@ -82,7 +82,7 @@ def test_a_rerun_replaces_the_last_scans_files_and_a_stop_leaves_none(room_log, 
     assert [p.name for p in out.glob("kos_top_*.png")] == ["kos_top_0.png"]  # not the first run's three
     capsys.readouterr()
 
-    import mapping.kosscan as kosscan
+    import kosmap.mapping.kosscan as kosscan
 
     def stop(*a, **k):  # Ctrl-C while the frames are read
         raise KeyboardInterrupt

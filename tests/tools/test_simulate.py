@@ -9,15 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from frontend.errors import ConfigError
-from frontend.logs import detect_topics, open_log
-from frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transforms
-from tools.cli import main
-from tools.simulate import (FLYING_ID, DepthNoise, LaserModel, SimConfig, World, WorldError, camera_mount,
+from kosmap.frontend.errors import ConfigError
+from kosmap.frontend.logs import detect_topics, open_log
+from kosmap.frontend.records import CameraModel, DepthFrame, Odometry, Scan, Transforms
+from kosmap.tools.cli import main
+from kosmap.tools.simulate import (FLYING_ID, DepthNoise, LaserModel, SimConfig, World, WorldError, camera_mount,
                             kinect_v2_model, laser_mount, load_world, render_depth, render_laser, simulate)
-from tools.simulate.motion import OdometryNoise, Trajectory, odometry, plan
-from tools.simulate.render import camera_pose, render_depth_geometry
-from tools.simulate.world import PathSpec, floorplan_rectangles
+from kosmap.tools.simulate.motion import OdometryNoise, Trajectory, odometry, plan
+from kosmap.tools.simulate.render import camera_pose, render_depth_geometry
+from kosmap.tools.simulate.world import PathSpec, floorplan_rectangles
 
 
 @pytest.fixture(scope="module")
@@ -262,7 +262,7 @@ def test_odometry_drifts_with_distance_and_rotation():
 # ---- blueprint --------------------------------------------------------------------------------------------------------
 
 def test_blueprint_matches_the_walls(room, tmp_path):
-    from mapping.mapio import read_map_server, write_map_server
+    from kosmap.mapping.mapio import read_map_server, write_map_server
 
     g = room.blueprint(0.05)
     assert g.resolution == 0.05 and g.origin[2] == 0.0
@@ -286,7 +286,7 @@ def test_blueprint_matches_the_walls(room, tmp_path):
 
 def test_world_from_a_raster_floor_plan(tmp_path):
     """A world built from a map_server floor plan gives the laser what the segment world gives (± a cell)."""
-    from mapping.mapio import write_map_server
+    from kosmap.mapping.mapio import write_map_server
 
     (tmp_path / "walls.yaml").write_text(
         "walls:\n  - polyline: [[0, 0], [7, 0], [7, 5], [0, 5], [0, 0]]\n  - [5, 0, 5, 5]\n"
@@ -333,8 +333,8 @@ def test_office_world_has_what_the_issue_asks_for():
 def test_office_survey_path_enters_every_room_and_looks_round():
     """The office's named `survey` path: legal (no wall or furniture within the robot's radius), and within 2.5 m of
     the middle of each of the 16 side rooms, where a {spin} turns the robot round so the camera looks all round."""
-    from tools.simulate.motion import check_path
-    from tools.simulate.world import SPIN_SIDE
+    from kosmap.tools.simulate.motion import check_path
+    from kosmap.tools.simulate.world import SPIN_SIDE
 
     w = load_world("office")
     survey = w.paths["survey"]

@@ -9,13 +9,13 @@ import math
 import numpy as np
 import pytest
 
-from frontend.errors import ConfigError
-from frontend.logs import open_log
-from frontend.records import Imu, Odometry, Transforms
-from tools.simulate import SimConfig, load_world, simulate
-from tools.simulate.imu import G, ImuNoise, imu_stream
-from tools.simulate.log import simulation_truth, trajectory
-from tools.simulate.motion import OdometryNoise, Trajectory, odometry
+from kosmap.frontend.errors import ConfigError
+from kosmap.frontend.logs import open_log
+from kosmap.frontend.records import Imu, Odometry, Transforms
+from kosmap.tools.simulate import SimConfig, load_world, simulate
+from kosmap.tools.simulate.imu import G, ImuNoise, imu_stream
+from kosmap.tools.simulate.log import simulation_truth, trajectory
+from kosmap.tools.simulate.motion import OdometryNoise, Trajectory, odometry
 
 # small, quick logs: no laser, a rare tiny depth image
 QUICK = dict(laser=False, depth_rate=0.5, depth_width=16, depth_height=12, compression="lz4")
@@ -205,7 +205,7 @@ def test_gaps_and_stuck_gyro_appear_where_configured(room, tmp_path):
 
 
 def test_no_imu_flag_leaves_the_imu_out(tmp_path, capsys):
-    from tools.cli import main
+    from kosmap.tools.cli import main
 
     out = tmp_path / "noimu.mcap"
     assert main(["simulate", "room", "--out", str(out), "--duration", "1", "--no-imu", "--quiet",

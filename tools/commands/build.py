@@ -8,13 +8,13 @@ from typing import Annotated, Optional
 
 import typer
 
-from frontend.errors import KosmapError
-from tools import options as O
+from kosmap.frontend.errors import KosmapError
+from kosmap.tools import options as O
 
 
 def print_headline(metrics: dict, out: Path) -> None:
     """The report's place and its headline numbers (what `kosmap build` and `kosmap demo` print)."""
-    from mapping.report import headline, run_warnings
+    from kosmap.mapping.report import headline, run_warnings
 
     h = headline(metrics)
     if h["partial"]:
@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
         """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
         with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
         Ctrl-C stops reading and writes what is done, marked partial (exit code 130); a second Ctrl-C aborts."""
-        from mapping.pipeline import build as run
+        from kosmap.mapping.pipeline import build as run
 
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         if blueprint_scale is not None and blueprint is None:

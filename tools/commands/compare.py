@@ -9,17 +9,17 @@ from typing import Annotated, Optional
 
 import typer
 
-from frontend.errors import KosmapError
-from tools import options as O
+from kosmap.frontend.errors import KosmapError
+from kosmap.tools import options as O
 
 
 def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, blueprint_scale: float | None,
                 no_align: bool, out: Path, cfg) -> dict:
     """Load, align, score; then write everything (nothing is written when loading or scoring fails)."""
-    from mapping.compare import compare, metrics_markdown, overlay_picture
-    from mapping.config import config_dict
-    from mapping.mapio import _atomic_write_bytes, read_blueprint, read_map_server, write_png
-    from mapping.outdir import check_out, writing
+    from kosmap.mapping.compare import compare, metrics_markdown, overlay_picture
+    from kosmap.mapping.config import config_dict
+    from kosmap.mapping.mapio import _atomic_write_bytes, read_blueprint, read_map_server, write_png
+    from kosmap.mapping.outdir import check_out, writing
 
     if (b_path is None) == (blueprint is None):
         raise KosmapError("give exactly one reference: a second map (B.yaml) or --blueprint BP")

@@ -19,8 +19,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from tools import options as O
-from tools.data import REPO
+from kosmap.tools import options as O
+from kosmap.tools.data import REPO
 
 DEMO_WORLD = "office"
 DEMO_SIM = {"seed": 1, "depth_rate": 5.0, "laser_rate": 10.0, "compression": "lz4"}
@@ -30,11 +30,11 @@ CACHE = REPO / ".kosmap-cache" / "demo"
 WARM_UP = """
 import pathlib, shutil, sys, tempfile
 import numpy as np
-from mapping.config import Config
-from mapping.mapio import write_map_server
-from mapping.pipeline import build
-from tools.simulate import SimConfig, load_world, simulate
-from tools.simulate.world import PathSpec
+from kosmap.mapping.config import Config
+from kosmap.mapping.mapio import write_map_server
+from kosmap.mapping.pipeline import build
+from kosmap.tools.simulate import SimConfig, load_world, simulate
+from kosmap.tools.simulate.world import PathSpec
 d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-"))
 try:
     w = load_world("room")
@@ -62,8 +62,8 @@ def demo_log(cache: Path | None = None, fresh: bool = False, quiet: bool = False
     """The demo's log and blueprint, simulated once per settings, path (None: the world's default; or one of its
     named paths, e.g. "survey") and world file into `cache` (default .kosmap-cache/demo); (log, blueprint.yaml,
     seconds spent simulating or None when cached)."""
-    from mapping.mapio import write_map_server
-    from tools.simulate import SimConfig, load_world, simulate
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     cache = Path(cache) if cache is not None else CACHE
 
@@ -110,9 +110,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Simulate the bundled office (Kinect + laser + wheel odometry, cached after the first run), build its KOS
         and laser maps, compare them with the blueprint and each other; print where the report is."""
-        from mapping.config import Config
-        from mapping.pipeline import build
-        from tools.commands.build import print_headline
+        from kosmap.mapping.config import Config
+        from kosmap.mapping.pipeline import build
+        from kosmap.tools.commands.build import print_headline
 
         t0 = time.perf_counter()
         log, bp, sim_s = demo_log(fresh=fresh, quiet=quiet, path="survey" if survey else None)

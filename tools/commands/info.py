@@ -8,10 +8,10 @@ from typing import Annotated
 
 import typer
 
-from frontend.errors import TopicError
-from frontend.logs import LogInfo, detect_topics, open_log
-from frontend.records import CameraModel, DepthFrame
-from tools import options as O
+from kosmap.frontend.errors import TopicError
+from kosmap.frontend.logs import LogInfo, detect_topics, open_log
+from kosmap.frontend.records import CameraModel, DepthFrame
+from kosmap.tools import options as O
 
 
 def log_summary(path: Path, cfg) -> dict:

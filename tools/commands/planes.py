@@ -18,14 +18,14 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from frontend.camera import camera_for, camera_mount, config_mount
-from frontend.errors import KosmapError, LogError
-from frontend.fspf import filter_planes, frame_seed, warmup
-from frontend.logs.images import camera_model, check_depth_scale, read_camera_file
-from frontend.planes import Planes
-from mapping.outdir import check_out
-from frontend.records import CameraModel, DepthFrame, Transform, Transforms
-from tools import options as O
+from kosmap.frontend.camera import camera_for, camera_mount, config_mount
+from kosmap.frontend.errors import KosmapError, LogError
+from kosmap.frontend.fspf import filter_planes, frame_seed, warmup
+from kosmap.frontend.logs.images import camera_model, check_depth_scale, read_camera_file
+from kosmap.frontend.planes import Planes
+from kosmap.mapping.outdir import check_out
+from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from kosmap.tools import options as O
 
 CLOUD_TOPIC = "/kosmap/planes/points"
 NORMALS_TOPIC = "/kosmap/planes/normals"
@@ -92,8 +92,8 @@ def _log_meters(rec: DepthFrame, ov: Override, warnings: list[str]) -> np.ndarra
 def _log_frames(path: Path, cfg, ov: Override, every: int,
                 limit: int | None) -> tuple[int, Generator[Item, None, None], list[str]]:
     """Frames of a log (MCAP, bag) or of a folder of depth images; --camera and --depth-scale replace its own."""
-    from frontend.logs import detect_topics, open_log
-    from frontend.logs.images import ImageFolder
+    from kosmap.frontend.logs import detect_topics, open_log
+    from kosmap.frontend.logs.images import ImageFolder
 
     if path.is_dir():  # the folder reader applies the camera file and the scale itself
         log = ImageFolder(path, ov.camera_file, ov.depth_scale)
@@ -163,7 +163,7 @@ def _dataset_depth(s, ov: Override, warnings: list[str]) -> np.ndarray:
 def _dataset_frames(folders: list[Path], cfg, ov: Override, every: int,
                     limit: int | None) -> tuple[int, Generator[Item, None, None], list[str]]:
     """Frames of the known datasets (tools.datasets); --camera and --depth-scale replace their own, with a warning."""
-    from tools.datasets import iter_dataset
+    from kosmap.tools.datasets import iter_dataset
 
     total = sum(sum(1 for _ in _names(f, every, limit)) for f in folders)
     warnings: list[str] = []
@@ -218,7 +218,7 @@ def _save_npz(path: Path, planes: Planes, item: Item) -> None:
 
 
 def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) -> None:
-    from frontend.logs import convert
+    from kosmap.frontend.logs import convert
 
     p, idx = planes.points, planes.plane
     if len(p) > max_points:
@@ -324,7 +324,7 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
 
     Options, the camera file, `out` and the first frame are checked before anything is written; the outputs go
     to a hidden folder in `out` and are moved into place only when the run succeeds, so a failure leaves none."""
-    from tools.datasets import detect
+    from kosmap.tools.datasets import detect
 
     _check_args(path, every, limit, figures)
     ov = _override(camera_file, depth_scale)
@@ -352,14 +352,14 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
 def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item], warnings: list[str], *,
                    save_depth: bool, figures: int, mcap: bool, npz: bool, mcap_points: int, progress: bool) -> dict:
     """Filter the frames and write every output into `out` (the run's hidden folder); returns the summary."""
-    from mapping.config import write_config
+    from kosmap.mapping.config import write_config
 
     write_config(cfg, out / "config.toml")
     warmup(cfg.fspf.method)
     fig_step = max(1, -(-total // figures)) if figures > 0 else 0
     writer = None
     if mcap:
-        from frontend.logs.writer import McapWriter
+        from kosmap.frontend.logs.writer import McapWriter
 
         writer = McapWriter(out / "planes.mcap")
     rows: list[dict] = []
@@ -387,7 +387,7 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
                     mm = np.clip(np.round(planes.depth_image() * 1000.0), 0, 65535).astype(np.uint16)
                     cv2.imwrite(str(out / "depth" / f"{name}.png"), mm)
                 if fig_step and n % fig_step == 0:
-                    from tools.plane_figures import plane_figure
+                    from kosmap.tools.plane_figures import plane_figure
 
                     plane_figure(planes, out / "figures" / f"{name}.png", f"{item.source}",
                                  (cfg.depth.min_depth, cfg.depth.max_depth))

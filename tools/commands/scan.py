@@ -7,8 +7,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from frontend.errors import KosmapError
-from tools import options as O
+from kosmap.frontend.errors import KosmapError
+from kosmap.tools import options as O
 
 
 def register(app: typer.Typer) -> None:
@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """FSPF+ → KOS on every depth frame: LaserScans per level (+ obstacle, + fused with the laser) in an MCAP,
         the scan points as CSV, top-view figures, stats and the effective config."""
-        from mapping.kosscan import run_scan
+        from kosmap.mapping.kosscan import run_scan
 
         sets = list(set_ or [])
         if levels is not None:

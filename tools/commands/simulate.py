@@ -10,14 +10,14 @@ from typing import Annotated, Optional
 
 import typer
 
-from frontend.errors import ConfigError
-from tools.progress import seconds_bar
+from kosmap.frontend.errors import ConfigError
+from kosmap.tools.progress import seconds_bar
 
 
 def _sim_config(config: Path | None, sets: list[str] | None, **flags):
     """[simulate] of a TOML file ← --set key=value ← the dedicated flags (the most specific wins)."""
-    from mapping.config import parse_value
-    from tools.simulate.config import SimConfig
+    from kosmap.mapping.config import parse_value
+    from kosmap.tools.simulate.config import SimConfig
 
     values: dict = {}
     if config is not None:
@@ -100,8 +100,8 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Simulate a robot (Kinect v2 depth, Hokuyo laser, drifting odometry, a MEMS IMU, true pose) driving through a
         building and write the log as MCAP; optionally export the building's blueprint."""
-        from tools.simulate import load_path, load_world
-        from tools.simulate import simulate as run
+        from kosmap.tools.simulate import load_path, load_world
+        from kosmap.tools.simulate import simulate as run
 
         if out is None and blueprint is None:
             raise ConfigError("nothing to do: give --out LOG.mcap (the log) and/or --blueprint MAP.yaml (the floor plan)")
@@ -127,7 +127,7 @@ def register(app: typer.Typer) -> None:
         else:
             way = load_path(path) if path is not None else None
         if blueprint is not None:
-            from mapping.mapio import write_map_server
+            from kosmap.mapping.mapio import write_map_server
 
             if blueprint.suffix not in (".yaml", ".yml"):
                 raise ConfigError(f"--blueprint {blueprint} must name the map's .yaml (the .png goes beside it)")

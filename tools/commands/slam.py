@@ -9,8 +9,8 @@ from typing import Annotated, Optional
 
 import typer
 
-from tools import options as O
-from tools.progress import seconds_bar
+from kosmap.tools import options as O
+from kosmap.tools.progress import seconds_bar
 
 SLAM_FILES = ("trajectory.tum", "keyframes.tum", "graph.g2o", "metrics.json", "map.png", "map.pgm", "map.yaml",
               "config.toml")  # what `kosmap slam` writes (mapping/slam.py save_run)
@@ -32,14 +32,14 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
-        from mapping.outdir import check_out, writing
-        from mapping.slam import build_map, evaluate, run_slam, save_run, summary
+        from kosmap.mapping.outdir import check_out, writing
+        from kosmap.mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
         out = check_out(out)  # before the run, not after it
         cfg = O.make_config(config, set_, depth_topic=depth_topic, scan_topic=scan_topic, odom_topic=odom_topic,
                             imu_topic=imu_topic)
         if relations is not None and not relations.is_file():
-            from backend.metrics import MetricsError
+            from kosmap.backend.metrics import MetricsError
 
             raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
         with writing(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam"):

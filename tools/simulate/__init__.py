@@ -9,14 +9,14 @@ API for tests and other stages (nothing here writes files unless asked):
     simulation_truth("out.mcap") → {"config": {...}, "truth": {"odometry": {...}, "imu": {...} or None}}
 """
 
-from tools.simulate.api import render_depth, render_laser
-from tools.simulate.config import SimConfig
-from tools.simulate.imu import ImuNoise
-from tools.simulate.log import simulate, simulation_truth, trajectory
-from tools.simulate.motion import OdometryNoise
-from tools.simulate.render import LaserModel, camera_mount, kinect_v2_model, laser_mount
-from tools.simulate.sensors import DepthNoise, LaserNoise
-from tools.simulate.world import FLYING_ID, NO_SURFACE, Surface, World, WorldError, load_path, load_world
+from kosmap.tools.simulate.api import render_depth, render_laser
+from kosmap.tools.simulate.config import SimConfig
+from kosmap.tools.simulate.imu import ImuNoise
+from kosmap.tools.simulate.log import simulate, simulation_truth, trajectory
+from kosmap.tools.simulate.motion import OdometryNoise
+from kosmap.tools.simulate.render import LaserModel, camera_mount, kinect_v2_model, laser_mount
+from kosmap.tools.simulate.sensors import DepthNoise, LaserNoise
+from kosmap.tools.simulate.world import FLYING_ID, NO_SURFACE, Surface, World, WorldError, load_path, load_world
 
 __all__ = ["World", "Surface", "WorldError", "load_world", "load_path", "render_depth", "render_laser", "simulate",
            "trajectory", "SimConfig", "LaserModel", "DepthNoise", "LaserNoise", "camera_mount", "laser_mount",

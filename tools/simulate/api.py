@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from frontend.records import CameraModel, Transform
-from tools.simulate import render as _render
-from tools.simulate.render import LaserModel, kinect_v2_model, render_depth_geometry, render_laser_geometry
-from tools.simulate.sensors import DepthNoise, LaserNoise, apply_depth_noise, apply_laser_noise
-from tools.simulate.world import World
+from kosmap.frontend.records import CameraModel, Transform
+from kosmap.tools.simulate import render as _render
+from kosmap.tools.simulate.render import LaserModel, kinect_v2_model, render_depth_geometry, render_laser_geometry
+from kosmap.tools.simulate.sensors import DepthNoise, LaserNoise, apply_depth_noise, apply_laser_noise
+from kosmap.tools.simulate.world import World
 
 
 def render_depth(world: World, pose_xyyaw, camera_mount: Transform | None = None, camera_model: CameraModel | None = None,

@@ -8,12 +8,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields
 
-from frontend.errors import ConfigError
-from frontend.params import StageConfig, param
-from tools.simulate.motion import OdometryNoise
-from tools.simulate.render import LaserModel, camera_mount, kinect_v2_model, laser_mount
-from tools.simulate.imu import ImuNoise
-from tools.simulate.sensors import DepthNoise, LaserNoise
+from kosmap.frontend.errors import ConfigError
+from kosmap.frontend.params import StageConfig, param
+from kosmap.tools.simulate.motion import OdometryNoise
+from kosmap.tools.simulate.render import LaserModel, camera_mount, kinect_v2_model, laser_mount
+from kosmap.tools.simulate.imu import ImuNoise
+from kosmap.tools.simulate.sensors import DepthNoise, LaserNoise
 
 _POS = {"lo": 0.0, "lo_open": True}
 

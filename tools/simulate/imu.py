@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.simulate.motion import Trajectory
+from kosmap.tools.simulate.motion import Trajectory
 
 G = 9.80665  # standard gravity (m/s²)
 

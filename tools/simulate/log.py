@@ -21,14 +21,14 @@ from pathlib import Path
 
 import numpy as np
 
-from frontend.logs.writer import McapWriter
-from frontend.records import DepthFrame, Imu, Odometry, Scan, Transform, Transforms
-from tools.simulate.config import SimConfig
-from tools.simulate.imu import imu_stream, imu_truth
-from tools.simulate.motion import Trajectory, check_path, odometry, plan, wrap
-from tools.simulate.render import pose_matrix, render_depth_geometry, render_laser_geometry
-from tools.simulate.sensors import apply_laser_noise, depth_noise_mm
-from tools.simulate.world import PathSpec, World, WorldError
+from kosmap.frontend.logs.writer import McapWriter
+from kosmap.frontend.records import DepthFrame, Imu, Odometry, Scan, Transform, Transforms
+from kosmap.tools.simulate.config import SimConfig
+from kosmap.tools.simulate.imu import imu_stream, imu_truth
+from kosmap.tools.simulate.motion import Trajectory, check_path, odometry, plan, wrap
+from kosmap.tools.simulate.render import pose_matrix, render_depth_geometry, render_laser_geometry
+from kosmap.tools.simulate.sensors import apply_laser_noise, depth_noise_mm
+from kosmap.tools.simulate.world import PathSpec, World, WorldError
 
 # phase of each stream within its period (s), so that streams interleave as in a real log
 _PHASE = {"gt": 0.0, "odom": 0.001, "depth": 0.004, "scan": 0.009, "imu": 0.002}

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tools.simulate.world import PathSpec, World, WorldError
+from kosmap.tools.simulate.world import PathSpec, World, WorldError
 
 
 def wrap(a):

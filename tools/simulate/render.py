@@ -21,9 +21,9 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from frontend.camera import mount_transform
-from frontend.records import CameraModel, Transform
-from tools.simulate.world import World
+from kosmap.frontend.camera import mount_transform
+from kosmap.frontend.records import CameraModel, Transform
+from kosmap.tools.simulate.world import World
 
 EPS = 1e-9
 OPTICAL_RPY = (-math.pi / 2, 0.0, -math.pi / 2)  # REP 103 optical frame in camera_link, as roll, pitch, yaw

@@ -18,7 +18,7 @@ from functools import lru_cache
 import numpy as np
 from numba import njit
 
-from tools.simulate.world import FLYING_ID
+from kosmap.tools.simulate.world import FLYING_ID
 
 
 @dataclass(frozen=True)

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from tools.simulate.config import SimConfig
-from tools.simulate.log import trajectory
-from tools.simulate.render import camera_mount, kinect_v2_model, render_depth_geometry
-from tools.simulate.sensors import DepthNoise, apply_depth_noise
-from tools.simulate.world import load_world
+from kosmap.tools.simulate.config import SimConfig
+from kosmap.tools.simulate.log import trajectory
+from kosmap.tools.simulate.render import camera_mount, kinect_v2_model, render_depth_geometry
+from kosmap.tools.simulate.sensors import DepthNoise, apply_depth_noise
+from kosmap.tools.simulate.world import load_world
 
 
 def bench_frames(n: int, world: str = "office", seed: int = 0, pitch_deg: float = 0.0):

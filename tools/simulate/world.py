@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from frontend.errors import KosmapError
+from kosmap.frontend.errors import KosmapError
 
 SURFACE_CLASSES = ("floor", "ceiling", "wall", "table_top", "box_top", "box_side", "box_bottom", "ramp",
                    "cylinder", "cylinder_top")
@@ -301,7 +301,7 @@ class World:
         inside free, the outside (reached from the border without crossing a wall) unknown."""
         import cv2
 
-        from mapping.grid import OccupancyGrid
+        from kosmap.mapping.grid import OccupancyGrid
 
         if not resolution > 0:
             raise WorldError(f"blueprint resolution {resolution} must be > 0 m")
@@ -363,7 +363,7 @@ def bundled_worlds() -> list[str]:
 
 
 def _worlds_dir() -> Path:
-    return Path(str(resources.files("tools.simulate") / "worlds"))
+    return Path(str(resources.files("kosmap.tools.simulate") / "worlds"))
 
 
 def world_file(name_or_path: str | Path) -> Path:
@@ -513,7 +513,7 @@ def floorplan_rectangles(occupied: np.ndarray) -> list[tuple[int, int, int, int]
 
 
 def _floorplan_walls(world: World, spec, base: Path, where: str) -> None:
-    from mapping.mapio import read_map_server
+    from kosmap.mapping.mapio import read_map_server
 
     p = Path(spec)
     p = p if p.is_absolute() else base / p
