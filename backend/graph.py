@@ -8,7 +8,7 @@ Nodes are keyframes (backend/keyframes.py). Factors, each with its own noise mod
 - gyro (optional, backend/imu.py): the integrated yaw rate between consecutive nodes, a yaw-only constraint
   (x/y σ huge); in the final solve minus a gyro-bias variable × Δt (`gyro_bias = "estimate"`);
 - loops (backend/loops.py): a node's pose in an older submap's anchor frame, under a Cauchy kernel (or
-  GNC in the final solve): STACK.md measured plain Gaussian 11 m, Huber 1.4 m, Cauchy 0.21 m, GNC 0.12 m
+  GNC in the final solve): docs/dependencies.md measured plain Gaussian 11 m, Huber 1.4 m, Cauchy 0.21 m, GNC 0.12 m
   with 25 gross outlier loops among 500.
 ISAM2 keeps the estimate current while the loop search runs (candidates are chosen near the current
 estimate); one batch Levenberg–Marquardt (or GNC) solve finishes.

@@ -41,7 +41,7 @@ def camera_for(shape: tuple[int, int], cam: CameraModel | None, cfg: DepthConfig
     """The camera model for an image of `shape` (rows, cols): CameraInfo if it fits, else the FOV model.
 
     A CameraInfo for another resolution of the same aspect (e.g. HD info for a half-size image) is scaled;
-    without one, fx = (w/2)/tan(fH/2), fy = (h/2)/tan(fV/2) (DESIGN.md; not the thesis's eq. 2.1–2.2).
+    without one, fx = (w/2)/tan(fH/2), fy = (h/2)/tan(fV/2) (docs/design.md; not the thesis's eq. 2.1–2.2).
     """
     h, w = int(shape[0]), int(shape[1])
     if cam is not None:

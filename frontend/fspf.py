@@ -1,18 +1,18 @@
 """FSPF (Biswas & Veloso) and FSPF+ (thesis Alg. 1, 3–6): sampled plane filtering of depth images.
 
 Both take a depth image in metres, the pinhole camera and an explicit seed, and return `Planes`
-(frontend/planes.py). The inner loops run compiled with numba (STACK.md measured numpy-only FSPF+ at
+(frontend/planes.py). The inner loops run compiled with numba (docs/dependencies.md measured numpy-only FSPF+ at
 18–20 ms per 512×424 frame against ~3 ms compiled); `backend="numpy"` keeps a vectorised numpy path of the
 same algorithms for the benchmark's honesty (same steps and tests, not the same random draws: its RANSAC
 scores hypotheses in batches and refits on all inliers).
 
 FSPF+ (thesis Alg. 3): p0 a random eligible, unconsumed pixel; p1, p2 eligible within Ω of it; the search
 window W = fx·Δ/z̄, H = fy·Δ/z̄ around p0 (the projection of the world size Δ at their mean depth z̄;
-DESIGN.md), clipped at the border; its eligible pixels become 3D points and are consumed; RANSAC (ε, β;
+docs/design.md), clipped at the border; its eligible pixels become 3D points and are consumed; RANSAC (ε, β;
 Alg. 5) finds the plane, refitted by least squares; the normal is rectified to face the camera and
 classified (Alg. 6); planes of dropped classes and planes with ≤ nMin inliers are discarded; the loop stops
 when fewer than (1 − analysed fraction) of the eligible pixels are unconsumed. RANSAC scores its hypotheses
-on a random subset of the window (STACK.md), refits the winner on the subset's inliers, and the final plane
+on a random subset of the window (docs/dependencies.md), refits the winner on the subset's inliers, and the final plane
 is the least-squares fit of all its inliers (their moments, accumulated in the one pass that writes them).
 
 Our additions, each with a switch in FspfConfig: after the first plane, RANSAC runs again on the window's

@@ -154,7 +154,7 @@ def in_view(bearings: Bearings, cameras: list[tuple[CameraModel, Transform]]) ->
 class _BearingTable:
     """Bearing bins as a lookup on the tangent y'/x' in a frame turned to a camera's view centre.
 
-    atan2 per point cost ~60 % of the pass (STACK.md: "bearing from a tangent lookup instead of atan2"); bins
+    atan2 per point cost ~60 % of the pass (docs/dependencies.md: "bearing from a tangent lookup instead of atan2"); bins
     are uniform in angle, so a uniform table over the tangent gives a first guess that one or two edge
     comparisons correct.
     """

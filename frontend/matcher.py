@@ -4,14 +4,14 @@
   scores (Olson, "Real-time correlative scan matching", ICRA 2009); survives a guess a few cm / degrees off.
 - `gauss_newton`: sub-cell refinement on the bilinearly interpolated field (Kohlbrecher et al., hector_mapping,
   2011, eq. 7–13) with a quadratic prior towards the predicted pose (odometry), which may be stronger
-  along the direction of travel than across it (a narrow depth scan sees one wall: STACK.md).
+  along the direction of travel than across it (a narrow depth scan sees one wall: docs/dependencies.md).
 - `SearchGrids` + `branch_and_bound`: the exact correlative search over a large window for loop closure
   (Hess et al., "Real-time loop closure in 2D LIDAR SLAM", ICRA 2016, §V: precomputed max grids, DFS).
 
 These are written by hand, not taken from kiss-icp: kiss-icp's point-to-point ICP with a constant-velocity
 guess diverges on the sparse 180° laser logs (1° beams, 5 Hz, fast turns) and on narrow depth-camera scans
-(one wall in view), metres of error in STACK.md; likelihood-field matching with an odometry prior reached
-Cartographer's accuracy there. numba pays: one correlative search 0.94 ms vs 3.6 ms in numpy (STACK.md).
+(one wall in view), metres of error in docs/dependencies.md; likelihood-field matching with an odometry prior reached
+Cartographer's accuracy there. numba pays: one correlative search 0.94 ms vs 3.6 ms in numpy (docs/dependencies.md).
 """
 
 from __future__ import annotations

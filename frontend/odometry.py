@@ -7,11 +7,11 @@ measured on every log (tools/bench_slam.py):
   the recent keyframes (Cartographer's two overlapping local submaps, Hess et al. 2016 §IV), starting from
   the wheel-odometry prediction: a small correlative search, then Gauss–Newton coarse to fine with a prior
   towards the prediction. kiss-icp diverges on the sparse 180° benchmark lasers and on narrow depth
-  scans (STACK.md); this matcher reached Cartographer's accuracy on Intel. For a narrow depth scan the prior
+  scans (docs/dependencies.md); this matcher reached Cartographer's accuracy on Intel. For a narrow depth scan the prior
   can be made much stronger along the direction of travel (a corridor gives no along-track fix), and the
-  correlative search switched off (`search_linear = 0`), as STACK.md's corridor probe needed.
+  correlative search switched off (`search_linear = 0`), as docs/dependencies.md's corridor probe needed.
 - `KissIcpOdometry`: kiss-icp on the points lifted to z = 0, the wheel-odometry increment given as its
-  motion guess (`last_delta`, STACK.md), kept as the measured baseline.
+  motion guess (`last_delta`, docs/dependencies.md), kept as the measured baseline.
 
 Points are in base_link (N×2); poses (x, y, yaw) are in the front end's own drift-prone frame.
 """

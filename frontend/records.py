@@ -2,7 +2,7 @@
 
 SI units inside (metres, radians); stamps are integer nanoseconds (as in ROS 2 and MCAP) so that a
 record written and read back is bit-exact, with a float `stamp` in seconds for arithmetic.
-Frames follow REP 103/105 (DESIGN.md).
+Frames follow REP 103/105 (docs/design.md).
 """
 
 from __future__ import annotations
@@ -91,7 +91,7 @@ class CameraModel:
     def from_fov(cls, width: int, height: int, fov_h: float, fov_v: float, frame_id: str = "") -> CameraModel:
         """The field-of-view model when no CameraInfo exists: fx = (w/2)/tan(fH/2), fy = (h/2)/tan(fV/2).
 
-        (The thesis's eq. 2.1–2.2 reaches only half the field of view; DESIGN.md.)
+        (The thesis's eq. 2.1–2.2 reaches only half the field of view; docs/design.md.)
         """
         fx = (width / 2.0) / np.tan(fov_h / 2.0)
         fy = (height / 2.0) / np.tan(fov_v / 2.0)

@@ -1,6 +1,6 @@
 """Map files: map_server PGM/PNG + YAML (read and write) and PNG pictures for people.
 
-map_server conventions (STACK.md): 254 free, 0 occupied, 205 unknown; YAML `image, mode: trinary,
+map_server conventions (docs/dependencies.md): 254 free, 0 occupied, 205 unknown; YAML `image, mode: trinary,
 resolution, origin [x, y, yaw] of the lower-left pixel, negate 0, occupied_thresh 0.65, free_thresh 0.196`.
 Image row 0 is the map's top, grid row 0 its bottom: rows are flipped on the way in and out.
 """

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from kosmap.frontend.params import StageConfig, param
 
 # A narrow depth scan (70°, ≤ 4.5 m) gives the matcher no fix along a corridor: a strong odometry prior along
-# the direction of travel and no unconstrained correlative search (STACK.md, "The narrow depth camera in a
+# the direction of travel and no unconstrained correlative search (docs/dependencies.md, "The narrow depth camera in a
 # corridor loop": 17.5 m → 1.4 m ATE), and no wide recovery search (±1 m, ±90°), which locks a narrow scan onto
 # the wrong wall: on the simulated office (10835 KOS steps) ATE 7.5 m with it, 0.46 m without (wheel odometry
 # alone: 0.26 m). Values of [odometry] that differ for the KOS scans, applied over mapping.slam.KOS_FRONTEND

@@ -66,7 +66,7 @@ def depthimage_to_laserscan(depth: np.ndarray, cam, scan_height: int = 10, rmin:
 
 
 def kos_numpy(points: np.ndarray, mount, cfg: KosConfig, b, rmin=0.5, rmax=4.5) -> np.ndarray:
-    """KOS with numpy only: transform, bands, atan2 bins and `np.minimum.at` (STACK.md's baseline)."""
+    """KOS with numpy only: transform, bands, atan2 bins and `np.minimum.at` (docs/dependencies.md's baseline)."""
     m = mount.matrix()
     p = points.astype(np.float64) @ m[:3, :3].T + m[:3, 3]
     r = np.hypot(p[:, 0], p[:, 1])

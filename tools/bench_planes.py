@@ -200,7 +200,7 @@ def _markdown(out: dict) -> str:
             ok = "met" if r["median_ms"] <= TARGETS_MS[meth] else "NOT met"
             lines.append(f"- {r['method']}: median {r['median_ms']:.2f} ms → target {TARGETS_MS[meth]} ms {ok}.")
     lines += ["", "filtered % = plane points (kept and dropped by class) per frame pixel; pyransac3d: its one "
-              "plane's inliers. The numpy rows run the same algorithms without numba (STACK.md). \"thesis mode\" = "
+              "plane's inliers. The numpy rows run the same algorithms without numba (docs/dependencies.md). \"thesis mode\" = "
               "FSPF+ as the thesis has it (one plane per window, no merging, no strip/bend/noise-tail tests); the "
               "plain row is kosmap's default with those extensions (better wall recovery and cleaner planes: "
               "tests/frontend/test_fspf_sim.py).", "",

@@ -4,7 +4,7 @@ beside the published Cartographer and Graph Mapping numbers and kiss-icp measure
     .venv/bin/python -m kosmap.tools.bench_slam [--logs intel fr079 csail] [--seconds S] [--no-baselines]
 
 Per log: raw wheel odometry; kiss-icp with the odometry increment as its guess (front end only, as
-STACK.md measured it); our scan-to-submap front end alone; the full system (front end + loop closure +
+docs/dependencies.md measured it); our scan-to-submap front end alone; the full system (front end + loop closure +
 pose graph). One parameter set, the defaults of [odometry] and [graph], for every log. Wall-clock and
 CPU seconds of the whole run (reading the log included). Writes docs/benchmarks.md and docs/bench/slam.json.
 `--seconds` cuts each log to its first S seconds (profiling slices; not comparable with the published numbers).
@@ -173,7 +173,7 @@ def markdown(res: dict, meta: dict) -> str:
           "the mount in `/tf_static`), since the relation stamps are the laser scans'. Abs trans error of our "
           f"trajectory with the scored frame moved along the laser's x axis: {checks}. FR079's relations fit a frame "
           "about 4 cm ahead of its laser better (its bag puts the laser 4 cm ahead of base_link); we keep the laser frame.",
-          "- MIT CSAIL's odometry is partly pre-corrected (STACK.md) and stalls for a few scans then jumps (up to "
+          "- MIT CSAIL's odometry is partly pre-corrected (docs/dependencies.md) and stalls for a few scans then jumps (up to "
           "85° at once); the front end's branch-and-bound recovery handles those. GM's CSAIL numbers are far "
           "below everyone's, as in Hess et al.",
           "- Loop precision needs a reference: the relations are solved as a pose graph (they come from one "

@@ -2,7 +2,7 @@
 chunks, rosbags decodes CDR (or ROS 1) messages.
 
 mcap_ros2's own decoder walks arrays element by element in Python (~1000× slower on depth images;
-STACK.md), so only the container is read with `mcap`.
+docs/dependencies.md), so only the container is read with `mcap`.
 """
 
 from __future__ import annotations

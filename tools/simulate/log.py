@@ -1,6 +1,6 @@
 """Write a simulated robot log: the robot drives the path, every sensor fires at its own rate, MCAP out.
 
-Topics as kinect2_bridge, hokuyo_node and a wheel base name theirs (DESIGN.md): depth images (16UC1 mm)
+Topics as kinect2_bridge, hokuyo_node and a wheel base name theirs (docs/design.md): depth images (16UC1 mm)
 with CameraInfo per camera, /scan, /odom (odom → base_link, drifting), the true pose on /ground_truth/odom
 (map → base_link, 100 Hz), a MEMS IMU on /imu (sensor_msgs/Imu, 200 Hz, frame imu_link: an identity mount
 on base_link) and /tf_static for the mounts; optionally each depth frame's surface ids. The effective settings

@@ -48,7 +48,7 @@ def laser_mount(xyz=(0.15, 0.0, 0.35), rpy=(0.0, 0.0, 0.0), frame_id: str = "las
 def kinect_v2_model(frame_id: str = "kinect2_ir_optical_frame", width: int = KINECT_V2_WIDTH,
                     height: int = KINECT_V2_HEIGHT, fov_h_deg: float = KINECT_V2_FOV_DEG[0],
                     fov_v_deg: float = KINECT_V2_FOV_DEG[1]) -> CameraModel:
-    """The Kinect v2 depth camera (512×424, 70.6°×60°) as a pinhole model: fx = (w/2)/tan(fH/2) (DESIGN.md)."""
+    """The Kinect v2 depth camera (512×424, 70.6°×60°) as a pinhole model: fx = (w/2)/tan(fH/2) (docs/design.md)."""
     return CameraModel.from_fov(width, height, math.radians(fov_h_deg), math.radians(fov_v_deg), frame_id)
 
 
