@@ -35,6 +35,11 @@ def test_build_prints_the_headline_and_writes_the_report(room, tmp_path, capsys)
     assert m["frames"]["processed"] == 15 and m["maps"]["laser"]["resolution"] == pytest.approx(0.1)
     assert "resolution = 0.1" in (out / "config.toml").read_text()
     assert (out / "report.html").is_file() and (out / "map_kos_obstacle.pgm").is_file()
+    # beside each F1 against the blueprint, the F1 of the walls the robot saw (never below the plain F1)
+    laser_bp = next(c for c in m["comparisons"].values() if c["a"] == "laser" and c["b"] == "blueprint")["tolerances"]["0.10"]
+    assert laser_bp["f1_observed"] >= laser_bp["f1"] - 1e-9
+    line = next(ln for ln in cap.out.splitlines() if "laser vs blueprint" in ln)
+    assert line.endswith(f"{laser_bp['f1']:.3f}   (walls seen: {laser_bp['f1_observed']:.3f})")
 
 
 def test_build_refuses_a_log_with_neither_depth_nor_laser(tmp_path, capsys):

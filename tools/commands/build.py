@@ -24,7 +24,8 @@ def print_headline(metrics: dict, out: Path) -> None:
               for k, c in metrics["comparisons"].items()}
     width = max([len(v) for v in labels.values()] + [10])
     for k, f1 in h["f1"].items():
-        print(f"  F1 at 0.10 m  {labels[k]:<{width}}  {f1:.3f}")
+        seen = h["f1_seen"].get(k)
+        print(f"  F1 at 0.10 m  {labels[k]:<{width}}  {f1:.3f}" + ("" if seen is None else f"   (walls seen: {seen:.3f})"))
     for k, ate in h["ate"].items():
         print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  {ate:.3f} m")
     t = metrics["timing"]
