@@ -4,7 +4,7 @@ Nodes are keyframes (backend/keyframes.py). Factors, each with its own noise mod
 - scan matching: the front end's relative pose between consecutive nodes, σ growing with the distance;
 - wheel odometry (optional): the odometry increment between consecutive nodes, looser; in the final solve its
   translation is scaled by an odometry-scale variable (`odom_scale = "estimate"`, a weak prior on 1): loops and
-  scans that see along the path make the wheel radius error observable (issue #9);
+  scans that see along the path make the wheel radius error observable;
 - gyro (optional, backend/imu.py): the integrated yaw rate between consecutive nodes, a yaw-only constraint
   (x/y σ huge); in the final solve minus a gyro-bias variable × Δt (`gyro_bias = "estimate"`);
 - loops (backend/loops.py): a node's pose in an older submap's anchor frame, under a Cauchy kernel (or

@@ -1,7 +1,7 @@
 """Gyro yaw rate: buffered, integrated between graph nodes, and checked for gaps and a stuck output.
 
 The yaw increment between two stamps is the trapezoid integral of the rate samples (linearly interpolated at
-both ends), exact for a rate linear in time. Its noise ([graph] gyro_* keys, issue #9):
+both ends), exact for a rate linear in time. Its noise ([graph] gyro_* keys):
 σ² = N²·Δt (white rate noise, N the noise density) + (σ_b·Δt)² (bias not estimated) + floor².
 Intervals the samples do not cover, with a gap between samples, or overlapping a run of identical outputs
 lasting ≥ `stuck_s` (a stuck MEMS part: real rate noise never repeats a float exactly) give no increment;

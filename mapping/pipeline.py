@@ -79,7 +79,7 @@ class SlamFeed:
     def __init__(self, slam, use_odom: bool, use_imu: bool = False) -> None:
         self.slam = slam
         self.use_odom = use_odom
-        self.use_imu = use_imu and slam.gcfg.imu  # the log's gyro: scans also wait for its samples (issue #9)
+        self.use_imu = use_imu and slam.gcfg.imu  # the log's gyro: scans also wait for its samples
         slam.expect_imu = self.use_imu
         self.wheel = WheelOdometry()
         self.pending: deque[tuple[int, np.ndarray]] = deque()

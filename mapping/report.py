@@ -17,7 +17,7 @@ import numpy as np
 
 from kosmap.mapping.mapio import save_figure
 
-TOL = "0.10"  # the tolerance of the headline numbers (the acceptance)
+TOL = "0.10"  # the tolerance of the headline numbers
 
 
 def _f(v, digits: int = 3, unit: str = "") -> str:

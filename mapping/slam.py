@@ -100,7 +100,7 @@ class Slam:
         self.since_update = 0  # nodes added since the last ISAM2 update
         self.since_loop = 0  # loops added since the last ISAM2 update
         self.calibrations = 0
-        # the gyro (issue #9): samples buffered; a yaw factor per node interval once scans and samples are past its end
+        # the gyro: samples buffered; a yaw factor per node interval once scans and samples are past its end
         self.gyro = GyroBuffer(self.gcfg.gyro_max_gap_s, self.gcfg.gyro_stuck_s)
         self.expect_imu = False  # the log has an IMU: node intervals wait for its samples
         self.gyro_pending: deque[tuple[int, int, int, int, np.ndarray]] = deque()  # (a, b, t_a, t_b, rel)
@@ -486,7 +486,7 @@ def kos_odometry_config(cfg) -> OdometryConfig:
 
 # The graph for a narrow KOS scan, before [build] kos_graph: wheel-odometry factors closer to what a wheeled indoor robot
 # on a flat floor does (σ 5 mm + 2 % of the step; the [graph] defaults, 5 cm + 10 %, are for the slipping laser
-# benchmark robots). Along a corridor the wheels are all that fixes the position, and the odometry scale (issue #9) is
+# benchmark robots). Along a corridor the wheels are all that fixes the position, and the odometry scale is
 # observable only if the wheels are not declared worse than they are. Measured on the simulated office (361 s, one
 # front camera, 10 Hz depth, replayed KOS scans, ATE RMSE): with the gyro 0.056 → 0.045 m (seed 0), 0.065 → 0.039 m
 # (seed 1); scale estimate 1.0071 → 1.0086 (seed 0, truth 1.0100); without the gyro seed 1 0.104 → 0.081 m.

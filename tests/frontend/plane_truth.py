@@ -21,8 +21,7 @@ def score(planes: Planes, sid: np.ndarray, truth: dict[int, tuple[str, np.ndarra
           camera, sigma, with_incidence: bool = False) -> dict:
     """Accuracy of `planes` against the truth: {surface id: (class, world plane)}; sigma(z) is the noise model.
 
-    - on_own_surface: fraction of points whose pixel shows a planar surface, within 3σ of it (the issue's
-      "accepted points lie on a true planar surface within 3σ of the noise model");
+    - on_own_surface: fraction of points whose pixel shows a planar surface, within 3σ of it;
     - on_surface (stricter): within 3σ (along the ray) of the true plane of their plane's majority surface
       (a plane that straddles two surfaces loses the minority's points);
     - normal_err_deg: per plane, angle to its majority surface's normal (median over planes, and all);

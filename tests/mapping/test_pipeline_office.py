@@ -2,8 +2,8 @@
 both SLAMs, both maps and the report, with the numbers this path allows.
 
 This path never enters the 16 side rooms: the laser sees 85 % of the blueprint's wall faces, the 4.5 m Kinect 58 % (a
-face counts as seen when the map holds free space in front of it), so a whole-blueprint F1 of 0.90 / 0.95 (issue 8)
-is out of reach by construction (measured 2026-11-22: KOS 0.535, laser 0.885). The acceptance is checked where it
+face counts as seen when the map holds free space in front of it), so a whole-blueprint F1 of 0.90 / 0.95
+is out of reach by construction (KOS about 0.55, laser about 0.89). Those figures are checked where they
 can be met, on the office surveyed room by room: tests/mapping/test_office_survey.py. Here: precision, the share of
 walls seen, and the F1 over the walls seen. Furniture (desks, benches, a box) is in every range-sensor map and not in
 the plan: precision 0.95 (laser), 0.84 (KOS obstacle scan, which sees table tops and legs by design).

@@ -33,8 +33,8 @@ def test_kos_slam_on_a_simulated_room_beats_wheel_odometry(room_log, tmp_path, c
     m = _slam(room_log, tmp_path / "out", capsys)
     assert m["run"]["scans"] >= 290 and m["run"]["keyframes"] >= 20
     slam, odom = m["ate"]["rmse"], m["ate_odometry"]["rmse"]
-    # measured (seed 0): SLAM 0.020 m RMSE vs wheel odometry 0.053 m (front end alone 0.022 m); with issue 9's
-    # per-wheel odometry errors 0.016 m vs 0.059 m
+    # measured (seed 0): SLAM 0.020 m RMSE vs wheel odometry 0.053 m (front end alone 0.022 m); with per-wheel
+    # odometry errors 0.016 m vs 0.059 m
     assert slam <= 0.7 * odom, (slam, odom)
     assert slam <= 0.04, m["ate"]
     hd = m["run"]["heading"]  # a rectangular room: its walls give the heading (backend/manhattan.py)

@@ -20,7 +20,7 @@ def test_simulated_office_laser_log(tmp_path):
     r = run_slam(log, Config())
     m = evaluate(r)
     odom = evaluate(type(r)(**{**r.__dict__, "poses": r.odom_poses}))["ate"]["rmse"]
-    # measured (seed 3): 0.022 m RMSE, 0.126 m max, 27 of 27 loops correct; with issue 9's per-wheel odometry
+    # measured (seed 3): 0.022 m RMSE, 0.126 m max, 27 of 27 loops correct; with per-wheel odometry
     # errors (total heading drift 0.215°/m; wheel odometry's ATE 0.94 → 1.74 m): 0.021 m, 0.123 m, precision 1.0
     assert m["ate"]["rmse"] <= 0.05, m["ate"]
     assert m["ate"]["max"] <= 0.25, m["ate"]

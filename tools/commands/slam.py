@@ -65,7 +65,7 @@ def register(app: typer.Typer) -> None:
             a = metrics["ate"]
             print(f"ATE: rmse {a['rmse']:.4f} m, max {a['max']:.4f} m ({a['n']} poses)"
                   + (f"; wheel odometry alone {metrics['ate_odometry']['rmse']:.4f} m" if "ate_odometry" in metrics else ""))
-        run = summary(result)  # what the graph calibrated (issue #9): the wheels' distance scale, the gyro's bias
+        run = summary(result)  # what the graph calibrated: the wheels' distance scale, the gyro's bias
         cal = ([f"wheel odometry distance scale {run['odometry_scale']:.4f}"] if run.get("odometry_scale") is not None else []) + \
               ([f"gyro bias {run['gyro_bias_deg_s']:+.4f} °/s"] if run.get("gyro_bias_deg_s") is not None else [])
         hd = run.get("heading")
