@@ -7,7 +7,7 @@ The logs are `kosmap simulate office` with the simulator's default rates (Kinect
 10-minute one driving the bundled 140 m path twice; they are cached under .kosmap-cache/bench/. Each build runs in
 its own process, so its peak resident memory (the main process, and the largest worker) is its own. The 1-minute
 log is also built serially (`--workers 0`), the baseline the parallel run is compared with in the same run.
-Target (issue 8): ≥ 10× real time on 2 cores, memory flat in the log's length. Writes docs/bench/pipeline.json
+Target: ≥ 10× real time on 2 cores, memory flat in the log's length. Writes docs/bench/pipeline.json
 and docs/bench/pipeline.md, with each run's ratio to the same run in the previous pipeline.json.
 
 Wall time depends on what else the machine runs (the load average is recorded beside each run); the CPU seconds

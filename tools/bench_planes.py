@@ -30,7 +30,7 @@ from kosmap.tools.data import REPO, data_dir  # noqa: E402
 from kosmap.tools.benchutil import pin_one_core  # noqa: E402
 
 EPSILONS = (0.005, 0.010, 0.020)
-TARGETS_MS = {"fspf+": 5.0, "fspf": 1.5}  # per 512×424 frame, thesis real-time config (issue 4)
+TARGETS_MS = {"fspf+": 5.0, "fspf": 1.5}  # per 512×424 frame, thesis real-time config
 
 
 def sim_frames(n: int):

@@ -1,4 +1,4 @@
-"""Issue 4's acceptance on the simulator's ground truth (tools/simulate, bundled 'room' world, Kinect v2 noise):
+"""FSPF+ against the simulator's ground truth (tools/simulate, bundled 'room' world, Kinect v2 noise):
 accepted points on true planar surfaces, normal errors, wall recovery and classification, level and pitched 15°."""
 
 from __future__ import annotations

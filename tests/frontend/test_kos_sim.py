@@ -1,4 +1,4 @@
-"""KOS acceptance (issue 5) on the simulator's room world: real FSPF+ on noisy Kinect v2 frames, scored
+"""KOS on the simulator's room world: real FSPF+ on noisy Kinect v2 frames, scored
 against ray-cast ground truth and the simulated Hokuyo."""
 
 from __future__ import annotations

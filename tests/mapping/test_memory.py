@@ -1,4 +1,4 @@
-"""Memory stays flat in the log's length (issue 8): what the build holds per scan is a few compact numbers, the
+"""Memory stays flat in the log's length: what the build holds per scan is a few compact numbers, the
 keyframes' full scans are not kept once the loop closer has its thinned copy, and the spill keeps no per-point
 state. Sizes are counted (array buffers, tracemalloc), never timed."""
 

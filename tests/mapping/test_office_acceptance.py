@@ -1,4 +1,4 @@
-"""The issue 7 acceptance, independent of the simulator (test_sim_office.py runs it on the simulator's log): on
+"""The map metric validated independently of the simulator (test_sim_office.py runs it on the simulator's log): on
 a synthetic 30 × 14 m office with exact ray casting, a laser grid from exact poses scores F1 ≥ 0.95 at 0.10 m
 against the blueprint, and the same scans with one corridor sheared sideways by 0.5 m score clearly lower."""
 

@@ -1,7 +1,7 @@
-"""Issue 8 acceptance on the simulated office surveyed: the office world's `survey` path (into all 16 side rooms, both
+"""The simulated office surveyed: the office world's `survey` path (into all 16 side rooms, both
 labs and round the open office, looking all round in each: 365 m, 23 min), Kinect v2 at 5 Hz, Hokuyo at 10 Hz
 (18.75 ms per scan, so scans are skewed while the robot turns), wheel odometry and the IMU: `kosmap demo --survey`'s
-log, built with the blueprint. Asked: the KOS map vs the blueprint F1 ≥ 0.90 at 0.10 m, the laser map ≥ 0.95, both in
+log, built with the blueprint. Required: the KOS map vs the blueprint F1 ≥ 0.90 at 0.10 m, the laser map ≥ 0.95, both in
 the report.
 
 The KOS map on its own SLAM needs the running estimate rebased at each calibration and the Manhattan heading priors

@@ -1,4 +1,4 @@
-"""Issue 7 acceptance on the simulator's office (tools/simulate, 48 × 24 m, 15 cm walls): a laser grid built
+"""The map metric on the simulator's office (tools/simulate, 48 × 24 m, 15 cm walls): a laser grid built
 from the log's ground-truth poses scores F1 ≥ 0.95 at 0.10 m against the office blueprint (which validates the
 metric), and the same scans with one corridor sheared sideways by 0.5 m score clearly lower.
 

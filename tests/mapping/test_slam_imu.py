@@ -1,4 +1,4 @@
-"""SLAM with a gyro (issue #9) on the synthetic corridor ring (tests/mapping/synthetic_laser.py) seen by a narrow
+"""SLAM with a gyro on the synthetic corridor ring (tests/mapping/synthetic_laser.py) seen by a narrow
 Kinect-like scan (70°, ≤ 4.5 m): gyro yaw factors, the gyro bias and the odometry scale as graph variables; a gyro
 stream with gaps and a stuck stretch, read from a log file, still runs with warnings; no IMU works as before."""
 

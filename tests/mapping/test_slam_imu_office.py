@@ -1,4 +1,4 @@
-"""KOS SLAM with the simulator's /imu on the office (issues 6 and 9): a 90 s slice, and the whole office (361 s,
+"""KOS SLAM with the simulator's /imu on the office: a 90 s slice, and the whole office (361 s,
 140 m, the corridor ring with two loops) on two seeds. One front Kinect at 10 Hz, at half resolution to keep CI
 short (same 70.6° view and range), the default wheel-odometry errors (per-wheel scale 1.0/1.1 %, heading bias) and
 the default MEMS gyro. Full-resolution numbers (3 seeds, 10 and 5 Hz, front + rear, laser):

@@ -1,4 +1,4 @@
-"""The simulator's IMU (issue 9) and per-wheel odometry errors: noise and bias statistics match the settings,
+"""The simulator's IMU and per-wheel odometry errors: noise and bias statistics match the settings,
 the gyro's yaw agrees with the true trajectory within its noise model, faults appear where configured, and the
 truths written into the log (MCAP metadata) are the ones the data obey."""
 
