@@ -143,16 +143,21 @@ class McapWriter(LogWriter):
 
 
 class BagWriter(LogWriter):
-    """ROS 1 bag v2.0 via rosbags, with the Noetic typestore (its Header has `seq`; STACK.md)."""
+    """ROS 1 bag v2.0 via rosbags, with the Noetic typestore (its Header has `seq`; docs/dependencies.md)."""
 
     ros_version = 1
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, compression: str | None = None, chunk_bytes: int | None = None) -> None:
+        """`compression`: None, "bz2" or "lz4" per chunk; `chunk_bytes`: a chunk's size (rosbags' default 1 MiB)."""
         from rosbags.rosbag1 import Writer as Ros1Writer
 
         super().__init__(path)
         self._out.abort()  # rosbags refuses to overwrite
         self._w = Ros1Writer(self._out.tmp)
+        if compression is not None:
+            self._w.set_compression(getattr(Ros1Writer.CompressionFormat, compression.upper()))
+        if chunk_bytes is not None:
+            self._w.chunk_threshold = chunk_bytes
         self._w.open()
         self._conns: dict[str, object] = {}
         self._open = True

@@ -118,9 +118,28 @@ def test_unindexed_bag_with_whole_data_is_not_truncated(tmp_path):
 
 
 # -- 2. a log damaged before its first message is a LogError, not a topic problem --------------------------------------
-def test_bag_cut_inside_its_only_chunk_is_a_log_error(tmp_path, capsys):
-    _laser_bag(tmp_path / "full.bag", n=10, chunk=1 << 20)
+def test_bag_cut_inside_its_only_uncompressed_chunk_reads_its_whole_messages(tmp_path, capsys):
+    """An uncompressed chunk cut at half its bytes still holds whole messages: they are read, with the cut's warning."""
+    recs = _laser_bag(tmp_path / "full.bag", n=10, chunk=1 << 20)
     full = tmp_path / "full.bag"
+    cut = _cut(full, tmp_path / "half.bag", full.stat().st_size // 2)
+    with open_log(cut) as log:
+        got = list(log.read())
+        assert len(log.warnings) == 1 and "half.bag is truncated (it ends after" in log.warnings[0]
+    # every message whose bytes lie wholly before the cut: ~half of them, identical to those written
+    assert len(recs) * 0.3 < len(got) < len(recs) * 0.6
+    for a, b in zip(got, recs[:len(got)], strict=False):
+        assert a.stamp_ns == b.stamp_ns and type(a) is type(b)
+    code, out, _ = _cli(capsys, "info", "--json", str(cut))
+    assert code == 0 and json.loads(out)["truncated"] is True
+
+
+def test_bag_cut_inside_its_only_compressed_chunk_is_a_log_error(tmp_path, capsys):
+    recs = [r for r in records(n=10) if isinstance(r, (Scan, Odometry))]
+    full = tmp_path / "full.bag"
+    with BagWriter(full, compression="bz2") as w:
+        for r in recs:
+            w.write(r)
     cut = _cut(full, tmp_path / "half.bag", full.stat().st_size // 2)
     with pytest.raises(LogError, match=r"half\.bag is truncated: it ends after \d+ bytes, inside its first chunk"):
         with open_log(cut) as log:
