@@ -437,14 +437,12 @@ def markdown(doc: dict) -> str:
          "and three KOS levels + the obstacle scan; SLAM on the KOS obstacle scan and on the laser at 10 Hz; seven "
          "maps; five comparisons with the blueprint; the report). Target: ≥ 10× real time on 2 cores, flat memory.",
          f"Machine: {doc.get('machine', {}).get('cpus')} cores ({doc.get('machine', {}).get('cpu', 'cpu not recorded')}), "
-         f"Python {doc.get('machine', {}).get('python')}; "
-         f"code at {doc.get('commit', '?')}" + _older_rows(doc) + ".",
+         f"Python {doc.get('machine', {}).get('python')}" + _older_rows(doc) + ".",
          "", "The machine is shared: the load average (1 min, before and after each build) says how much else ran in "
          "it, the steal (the share of the machine's time its host gave to other guests during the build) how much ran "
-         "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: on "
-         "an AMD EPYC host (AVX2) the same code (3bb2c50) on the 10-minute log took 0.175 to 0.26 CPU s per second of "
-         "log in three builds within 25 minutes (6.4× to 9.9× real time), as the host's load changed what a CPU "
-         "second does; hence `--repeat`, several builds of a config with the median in the table and the range. 'CPU bound' is 2 cores "
+         "beside it. Wall times and the real-time factor suffer from both; the CPU seconds less, but not nothing: "
+         "a busy host changes what a CPU second does (on an AVX2 processor the 10-minute log took 0.175 to 0.26 CPU s "
+         "per second of log in three builds within 25 minutes); hence `--repeat`, several builds of a config with the median in the table and the range. 'CPU bound' is 2 cores "
          "divided by the build's CPU seconds (main, workers and SLAM processes) per second of log.", "",
          "| log | workers | config | depth frames | wall (s) | real-time factor | previous | ratio | CPU s per log s "
          "(previous) | CPU bound on 2 cores | load avg (steal) | peak RSS main (MB) | peak RSS worker (MB) |",
@@ -570,11 +568,11 @@ def memory_section(doc: dict) -> list[str]:
     L = ["", "## Memory", "",
          "Peak resident memory (VmHWM, MB) of the main process after pass 1 (log read, frames), after the "
          "grids, MCAP and comparisons, and over the whole build (the report included), of the largest worker and of "
-         "the larger of the two SLAM processes (since b3ac04a each SLAM runs in a process of its own, "
+         "the larger of the two SLAM processes (each SLAM runs in a process of its own, "
          "mapping/slamproc.py: its state grows there, not in the main process); "
          "the previous run of the same log and config in brackets. The frame workers also run the grid and comparison "
-         "jobs, forked once before pass 1 (before ede04ba the jobs' workers were forked after pass 1 and counted the "
-         "main process's pages, SLAM's state included, as their own)."
+         "jobs, forked once before pass 1 (so they do not count the main process's pages, SLAM's state included, "
+         "as their own)."
          " The main process starts at ~240 MB before reading a record (numpy and numba 90, gtsam 40, kosmap's "
          "modules 50, the FSPF+/KOS kernels loaded from numba's cache 50) and ~290 MB once pass 1 runs: constant.", "",
          "| log | workers | config | keyframes (KOS + laser) | main during pass 1, by quarter of the log | main after "
