@@ -19,6 +19,7 @@ from kosmap.frontend.logs.topics import TopicsConfig
 from kosmap.frontend.odometry import OdometryConfig
 from kosmap.mapping.compare import CompareConfig
 from kosmap.mapping.grid import GridConfig
+from kosmap.mapping.localize_config import LocalizeConfig
 from kosmap.mapping.pipeline_config import BuildConfig
 
 
@@ -35,6 +36,7 @@ class Config:
     grid: GridConfig = field(default_factory=GridConfig)
     compare: CompareConfig = field(default_factory=CompareConfig)
     build: BuildConfig = field(default_factory=BuildConfig)
+    localize: LocalizeConfig = field(default_factory=LocalizeConfig)
 
 
 SECTIONS: dict[str, type] = {f.name: f.default_factory for f in dataclasses.fields(Config)}  # type: ignore[misc]

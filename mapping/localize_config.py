@@ -1,0 +1,59 @@
+"""[localize]: `kosmap localize` (mapping/localize.py), Monte Carlo localization in a prior map or a blueprint.
+
+Defaults follow ROS's AMCL (wiki.ros.org/amcl, its parameters) and Thrun, Burgard & Fox, *Probabilistic Robotics*
+(2005), where they fit; where a narrow depth camera needs other values, the key says why.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from kosmap.frontend.params import StageConfig, param
+
+
+@dataclass
+class LocalizeConfig(StageConfig):
+    """[localize]: what is read of the log, the particle filter, recovery, and the scan-to-map refinement."""
+
+    section = "localize"
+    depth_rate: float = param(10.0, lo=0.0, doc="KOS steps per second localized (0 = every depth frame), as [build] depth_rate", unit="Hz")
+    laser_rate: float = param(10.0, lo=0.0, doc="laser scans per second localized (0 = every scan)", unit="Hz")
+    min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
+    max_range: float = param(12.0, lo=0.0, lo_open=True, doc="ignore returns farther than this (AMCL laser_max_range; the KOS scan ends at [depth] max_depth)", unit="m")
+    # the particle filter (AMCL: min_particles 100, max_particles 5000, kld_err 0.01, kld_z 0.99)
+    min_particles: int = param(100, lo=1, doc="fewest particles (AMCL min_particles)")
+    max_particles: int = param(5000, lo=1, doc="most particles while tracking or recovering (AMCL max_particles)")
+    global_density: float = param(200.0, lo=0.0, lo_open=True, doc="particles per m² of free space to start global localization with: a 70° scan needs a particle within ~0.3 m and ~15° of the truth (1/(π·0.3²)·24 ≈ 85 per m², ×2)", unit="1/m²")
+    global_max_particles: int = param(100000, lo=1, doc="cap on the global start (a 500 m² floor at global_density)")
+    kld_err: float = param(0.01, lo=0.0, lo_open=True, doc="KLD-sampling's bound on the K–L divergence (AMCL kld_err)")
+    kld_z: float = param(0.99, lo=0.5, hi=1.0, lo_open=True, doc="… holding with this probability (Fox 2003; AMCL kld_z)")
+    bin_xy: float = param(0.5, lo=0.0, lo_open=True, doc="KLD histogram cell (AMCL's pf: 0.5 m)", unit="m")
+    bin_yaw_deg: float = param(10.0, lo=0.0, lo_open=True, doc="KLD histogram heading bin (AMCL's pf: 10°)", unit="deg")
+    update_min_d: float = param(0.2, lo=0.0, doc="translation between filter updates (AMCL update_min_d)", unit="m")
+    update_min_a_deg: float = param(15.0, lo=0.0, doc="rotation between filter updates (AMCL update_min_a is 30°; a 70° view turned 30° sees half a new scene)", unit="deg")
+    resample_interval: int = param(2, lo=1, doc="filter updates between resamplings (AMCL resample_interval)")
+    odom_alpha: list = param([0.2, 0.2, 0.2, 0.2], doc="odometry motion model noise α1..α4 (AMCL odom_alpha1..4, diff model)")
+    no_odom_sigma_xy: float = param(0.3, lo=0.0, lo_open=True, doc="random walk per second without odometry", unit="m")
+    no_odom_sigma_yaw_deg: float = param(30.0, lo=0.0, lo_open=True, doc="… in heading", unit="deg")
+    # the measurement model (AMCL likelihood_field: z_hit 0.95, z_rand 0.05, sigma_hit 0.2, max_beams 30)
+    z_hit: float = param(0.95, lo=0.0, hi=1.0, lo_open=True, doc="likelihood field: weight of the Gaussian around the walls (AMCL laser_z_hit)")
+    z_rand: float = param(0.05, lo=0.0, hi=1.0, lo_open=True, doc="… of uniform noise: what furniture and people cost (AMCL laser_z_rand)")
+    sigma_hit: float = param(0.2, lo=0.0, lo_open=True, doc="… its standard deviation (AMCL laser_sigma_hit)", unit="m")
+    max_beams: int = param(30, lo=1, doc="end points per filter update, evenly spread over the scan (AMCL laser_max_beams)")
+    min_points: int = param(10, lo=1, doc="a scan with fewer end points does not update the filter")
+    # recovery (augmented MCL: AMCL recovery_alpha_slow/fast, 0.001 / 0.1 as its documentation suggests)
+    alpha_slow: float = param(0.001, lo=0.0, hi=1.0, doc="long-term average of the measurement likelihood (AMCL recovery_alpha_slow)")
+    alpha_fast: float = param(0.1, lo=0.0, hi=1.0, doc="short-term average (AMCL recovery_alpha_fast)")
+    lost_ratio: float = param(0.2, lo=0.0, hi=1.0, doc="w_fast/w_slow below this: the pose is lost, and a global set is added to the particles")
+    # convergence
+    converged_xy: float = param(0.25, lo=0.0, lo_open=True, doc="the particles' position spread below which the pose counts as found", unit="m")
+    converged_yaw_deg: float = param(10.0, lo=0.0, lo_open=True, doc="… and their heading spread", unit="deg")
+    # tracking refined by the scan-to-map matcher (frontend/matcher.py gauss_newton against the map's field)
+    refine: bool = param(True, doc="refine each pose by Gauss–Newton against the map, starting from the last refined pose moved by the odometry")
+    match_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="the matcher's field blur (one cell of a 5 cm map)", unit="m")
+    refine_prior_xy: float = param(100.0, lo=0.0, doc="Gauss–Newton pull towards the predicted position, across the direction of travel ([odometry] NARROW_SCAN: 100)", unit="1/m²")
+    refine_prior_along: float = param(1000.0, lo=0.0, doc="… along it (a narrow scan sees one corridor wall: NARROW_SCAN's 1000)", unit="1/m²")
+    refine_prior_yaw: float = param(100.0, lo=0.0, doc="… towards the predicted heading (KOS_FRONTEND: 100)", unit="1/rad²")
+    refine_gate_sigmas: float = param(3.0, lo=0.0, lo_open=True, doc="the refined track is restarted at the filter's pose when they differ by more than this many of the filter's spreads (at least converged_xy)")
+    seed: int = param(0, lo=0, doc="random seed of the particle filter (a run is repeatable)")
+    mcap_particles: int = param(500, lo=0, doc="MCAP: at most this many particles per filter update (a subsample; 0 = none)")
