@@ -334,16 +334,3 @@ class LoopCloser:
         """Drop the cached fields and pyramids (memory) once the run is over."""
         self._cache.clear()
 
-
-@dataclass
-class LoopReport:
-    """Accepted loops checked against a reference (ground truth) where one exists."""
-
-    total: int = 0
-    checked: int = 0
-    correct: int = 0
-    details: list = field(default_factory=list)
-
-    @property
-    def precision(self) -> float:
-        return self.correct / self.checked if self.checked else float("nan")

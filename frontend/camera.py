@@ -69,10 +69,6 @@ def depth_constraints(depth_m: np.ndarray, min_depth: float, max_depth: float) -
         return (d > min_depth) & (d <= max_depth)  # NaN compares False
 
 
-def eligible_mask(depth_m: np.ndarray, cfg: DepthConfig) -> np.ndarray:
-    return depth_constraints(depth_m, cfg.min_depth, cfg.max_depth)
-
-
 # ---- pixels ↔ 3D (pinhole) -------------------------------------------------------------------------------------------
 
 def backproject(depth_m: np.ndarray, cam: CameraModel, rows: np.ndarray | None = None,

@@ -97,10 +97,6 @@ class Planes:
     def __len__(self) -> int:
         return len(self.offsets)
 
-    @property
-    def class_names(self) -> list[str]:
-        return [PLANE_CLASSES[c] for c in self.classes]
-
     def point_classes(self) -> np.ndarray:
         """Class index of every point (N int8)."""
         return self.classes[self.plane] if len(self.plane) else np.zeros(0, np.int8)
@@ -172,15 +168,6 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     c = p.mean(axis=0)
     q = p - c
     _, vecs = np.linalg.eigh(q.T @ q)
-    n = vecs[:, 0]
-    return n, float(-n @ c)
-
-
-def plane_from_moments(count: float, s: np.ndarray, ss: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares plane from the point count, Σp (3) and Σppᵀ (3×3): merging refits without the points."""
-    c = s / count
-    cov = ss / count - np.outer(c, c)
-    _, vecs = np.linalg.eigh(cov)
     n = vecs[:, 0]
     return n, float(-n @ c)
 

@@ -392,9 +392,6 @@ class GridBuilder:
         stamp[go] = self.n_scans
 
     # -- output ----------------------------------------------------------------------------------------------------
-    def probabilities(self) -> np.ndarray:
-        """Occupancy probability of every cell of the array (0.5 where never seen)."""
-        return 1.0 / (1.0 + np.exp(-self.log_odds.astype(np.float64)))
 
     def to_occupancy(self, crop: bool = True) -> OccupancyGrid:
         """The map as an OccupancyGrid (0..100 = round(100·p), −1 never seen), cropped to the seen cells."""

@@ -73,10 +73,6 @@ class BoxRoom:
         s.append(_r(10, "box", [bx, by, 0], [0, 0, bh], [0.6, 0, 0]))  # its side toward −y
         self.surfaces = s
 
-    def by_id(self) -> dict[int, Rect]:
-        return {r.id: r for r in self.surfaces}
-
-
 def noise_sigma(z: np.ndarray) -> np.ndarray:
     """Axial depth noise σ(z) in metres (Kinect-v2-like: 1.5 mm + 0.15 % of the range)."""
     return 0.0015 + 0.0015 * np.asarray(z)

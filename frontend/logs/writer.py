@@ -62,9 +62,6 @@ class LogWriter:
     def write_path(self, topic: str, t_ns: int, frame_id: str, poses: np.ndarray, stamps_ns: np.ndarray) -> None:
         self.write_msg(topic, "nav_msgs/msg/Path", convert.path_msg(self.ts, t_ns, frame_id, poses, stamps_ns), t_ns)
 
-    def write_pose(self, topic: str, t_ns: int, frame_id: str, x: float, y: float, yaw: float) -> None:
-        self.write_msg(topic, "geometry_msgs/msg/PoseStamped", convert.pose_stamped_msg(self.ts, t_ns, frame_id, x, y, yaw), t_ns)
-
     # -- lifecycle -----------------------------------------------------------------------------------------------
     def write_msg(self, topic: str, msgtype: str, msg, t_ns: int) -> None:
         raise NotImplementedError

@@ -358,10 +358,6 @@ def _rasterise(s: Solid, occ: np.ndarray, x0: float, y0: float, res: float) -> N
 BUNDLED = ("office", "room")
 
 
-def bundled_worlds() -> list[str]:
-    return list(BUNDLED)
-
-
 def _worlds_dir() -> Path:
     return Path(str(resources.files("kosmap.tools.simulate") / "worlds"))
 
