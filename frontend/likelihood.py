@@ -129,8 +129,6 @@ class LikelihoodField:
 
     def score(self, pose, points: np.ndarray) -> float:
         """Mean field value at the points (N×2, scan frame) placed at `pose`."""
-        from kosmap.frontend.matcher import mean_score
-
         return float(mean_score(self.values, self.origin[0], self.origin[1], self.resolution,
                                 np.ascontiguousarray(points, dtype=np.float64), np.asarray(pose, dtype=np.float64)))
 
@@ -190,3 +188,18 @@ def densify(points: np.ndarray, spacing: float, max_gap: float, rel: float = 3.0
     if max_gap <= 0 or len(points) < 2:
         return points
     return _densify(np.ascontiguousarray(points, dtype=np.float64), float(spacing), float(max_gap), float(rel))
+
+
+@njit(cache=True)
+def mean_score(field, ox, oy, res, pts, pose):
+    """Mean bilinear field value of the points placed at pose."""
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    acc = 0.0
+    n = pts.shape[0]
+    for k in range(n):
+        qx = pose[0] + c * pts[k, 0] - s * pts[k, 1]
+        qy = pose[1] + s * pts[k, 0] + c * pts[k, 1]
+        v, _, _ = sample(field, (qx - ox) / res - 0.5, (qy - oy) / res - 0.5)
+        acc += v
+    return acc / max(n, 1)

@@ -21,22 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from kosmap.frontend.likelihood import LikelihoodField, sample
-
-
-@njit(cache=True)
-def mean_score(field, ox, oy, res, pts, pose):
-    """Mean bilinear field value of the points placed at pose."""
-    c = math.cos(pose[2])
-    s = math.sin(pose[2])
-    acc = 0.0
-    n = pts.shape[0]
-    for k in range(n):
-        qx = pose[0] + c * pts[k, 0] - s * pts[k, 1]
-        qy = pose[1] + s * pts[k, 0] + c * pts[k, 1]
-        v, _, _ = sample(field, (qx - ox) / res - 0.5, (qy - oy) / res - 0.5)
-        acc += v
-    return acc / max(n, 1)
+from kosmap.frontend.likelihood import LikelihoodField, mean_score, sample
 
 
 @njit(cache=True)
