@@ -25,7 +25,7 @@ from kosmap.frontend.kosframe import KosFrame, merge_cameras
 from kosmap.frontend.logs import detect_topics, open_log
 from kosmap.frontend.records import DepthFrame, Scan, Transform, Transforms
 from kosmap.mapping.config import Config, write_config
-from kosmap.mapping.framepool import FramePool
+from kosmap.mapping.runtime.framepool import FramePool
 from kosmap.mapping.mapio import save_figure
 
 KOS_PREFIX = "/kinect_scan/"
@@ -65,7 +65,7 @@ class CameraSync:
 
 
 class _RawDepth(DepthFrame):
-    """A 16UC1 frame whose `meters()` is the raw image: the frame stage converts it (mapping/framepool.py), in the
+    """A 16UC1 frame whose `meters()` is the raw image: the frame stage converts it (mapping/runtime/framepool.py), in the
     worker when there are workers, so the reading process neither converts nor ships float32 frames."""
 
     def meters(self) -> np.ndarray:
@@ -262,7 +262,7 @@ def _figure(path: Path, step: KosStep, laser_mount: Transform | None, levels: li
 def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit: int | None = None,
              progress: bool = True) -> dict:
     """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary."""
-    from kosmap.mapping.outdir import check_out, writing
+    from kosmap.mapping.runtime.outdir import check_out, writing
 
     out = check_out(out)
     with open_log(log_path) as log:  # refuse a log without depth before writing anything

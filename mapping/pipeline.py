@@ -45,13 +45,13 @@ from kosmap.frontend.logs import detect_topics, open_log
 from kosmap.frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
 from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
 from kosmap.mapping.config import Config, config_dict, write_config
-from kosmap.mapping.childproc import die_with_parent
-from kosmap.mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
+from kosmap.mapping.runtime.childproc import die_with_parent
+from kosmap.mapping.runtime.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
 from kosmap.mapping.grid import GridBuilder, OccupancyGrid
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
-from kosmap.mapping.outdir import SPILL_PREFIX, check_out, claim, discard, record
-from kosmap.mapping.slamproc import RemoteFeed, SlamProcessError
+from kosmap.mapping.runtime.outdir import SPILL_PREFIX, check_out, claim, discard, record
+from kosmap.mapping.runtime.slamproc import RemoteFeed, SlamProcessError
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
 ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior

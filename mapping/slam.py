@@ -520,7 +520,7 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     (mapping/kosscan.py's KosStream), with the log's wheel odometry; the ground-truth topic is read for scoring."""
     from kosmap.frontend.logs import detect_topics, open_log
     from kosmap.frontend.odometry import scan_points_base
-    from kosmap.mapping.framepool import FramePool
+    from kosmap.mapping.runtime.framepool import FramePool
     from kosmap.mapping.kosscan import KosStream, ScanRun
     from kosmap.mapping.pipeline import SlamFeed
 

@@ -78,7 +78,7 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
 
     def sample() -> None:  # resident memory over the run, twice a second
         while not stop.wait(0.5):
-            # (RSS, a SLAM process?) of each child: mapping/slamproc.py names its processes slam-…
+            # (RSS, a SLAM process?) of each child: mapping/runtime/slamproc.py names its processes slam-…
             rss = {c: (_rss_mb(c), _comm(c).startswith("slam-")) for c in _children(os.getpid())}
             slam = [m for m, is_slam in rss.values() if is_slam]
             work = [m for m, is_slam in rss.values() if not is_slam]
@@ -233,7 +233,7 @@ STAGES = [
     ("frame stage (kos_frame)", "frontend/kosframe.py", "kos_frame"),
     ("  FSPF+ (filter_planes)", "frontend/fspf.py", "filter_planes"),
     ("  KOS (KosAccumulator.add_depth)", "frontend/kos.py", "add_depth"),
-    ("  depth to metres", "mapping/framepool.py", "in_meters"),
+    ("  depth to metres", "mapping/runtime/framepool.py", "in_meters"),
     ("steps: merge cameras, KOS scans (KosStream._finish)", "mapping/kosscan.py", "_finish"),
     ("spill and fused scan (on_step)", "mapping/pipeline.py", "on_step"),
     ("stats.csv, plane clouds (on_frame)", "mapping/pipeline.py", "on_frame"),
@@ -569,7 +569,7 @@ def memory_section(doc: dict) -> list[str]:
          "Peak resident memory (VmHWM, MB) of the main process after pass 1 (log read, frames), after the "
          "grids, MCAP and comparisons, and over the whole build (the report included), of the largest worker and of "
          "the larger of the two SLAM processes (each SLAM runs in a process of its own, "
-         "mapping/slamproc.py: its state grows there, not in the main process); "
+         "mapping/runtime/slamproc.py: its state grows there, not in the main process); "
          "the previous run of the same log and config in brackets. The frame workers also run the grid and comparison "
          "jobs, forked once before pass 1 (so they do not count the main process's pages, SLAM's state included, "
          "as their own)."
@@ -622,7 +622,7 @@ def memory_section(doc: dict) -> list[str]:
           "What the build holds: no frames and no scans (the per-step scans, laser scans and plane clouds go to a "
           "temporary file, read back in chunks; the plane points keep no per-point stamp); at most `[build] "
           "in_flight` frames (3 per worker) are queued, their depth in a ring of shared-memory slots "
-          "(mapping/framepool.py). Per scan fed to SLAM: 65 bytes (stamp, front-end pose, odometry, flags: compact "
+          "(mapping/runtime/framepool.py). Per scan fed to SLAM: 65 bytes (stamp, front-end pose, odometry, flags: compact "
           "arrays, mapping/slam.py) and 8 bytes of spill index. Per keyframe: the loop closer's thinned float32 "
           "points in its submaps (a keyframe's full scan is dropped once they are taken), the pose-graph node and "
           "factors (gtsam), the keyframe record; the loop closer's likelihood fields are an LRU cache "

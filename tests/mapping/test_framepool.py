@@ -12,7 +12,7 @@ from kosmap.frontend.depthstream import DepthItem
 from kosmap.frontend.fspf import FspfConfig
 from kosmap.frontend.kos import KosConfig, bearings_for
 from kosmap.frontend.records import CameraModel
-from kosmap.mapping.framepool import FramePool
+from kosmap.mapping.runtime.framepool import FramePool
 
 
 def _items(n: int) -> list[DepthItem]:
@@ -142,7 +142,7 @@ def _raise_odd(*args, **kwargs):
 def test_an_error_that_does_not_unpickle_comes_back_as_its_text_and_close_never_waits(monkeypatch):
     import pytest
 
-    import kosmap.mapping.framepool as fp
+    import kosmap.mapping.runtime.framepool as fp
 
     items = _items(5)
     fspf, depth, kos = FspfConfig(n_min=20), DepthConfig(), KosConfig()
@@ -168,8 +168,8 @@ def test_the_workers_die_with_a_build_killed_outright():
     import time
     from pathlib import Path
 
-    script = ("import time\nfrom frontend.camera import DepthConfig\nfrom frontend.fspf import FspfConfig\n"
-              "from frontend.kos import KosConfig\nfrom mapping.framepool import FramePool\n"
+    script = ("import time\nfrom kosmap.frontend.camera import DepthConfig\nfrom kosmap.frontend.fspf import FspfConfig\n"
+              "from kosmap.frontend.kos import KosConfig\nfrom kosmap.mapping.runtime.framepool import FramePool\n"
               "pool = FramePool(FspfConfig(), DepthConfig(), KosConfig(), workers=2)\nprint('ready', flush=True)\n"
               "time.sleep(60)\n")
     p = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, text=True,
@@ -195,7 +195,7 @@ def _slow_second_init(configs, parent_pid, count):
     """The pool's worker start, the second worker's half a second late: the first then answers both pings."""
     import time
 
-    import kosmap.mapping.framepool as fp
+    import kosmap.mapping.runtime.framepool as fp
 
     with count.get_lock():
         count.value += 1
@@ -212,7 +212,7 @@ def test_every_frame_loop_runs_before_the_pool_is_used_so_close_never_hangs(monk
     import threading
     from concurrent.futures import ProcessPoolExecutor
 
-    import kosmap.mapping.framepool as fp
+    import kosmap.mapping.runtime.framepool as fp
 
     count = mp.get_context("fork").Value("i", 0)
 

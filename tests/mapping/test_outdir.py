@@ -11,7 +11,7 @@ import pytest
 
 from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping.config import load_config
-from kosmap.mapping.outdir import MANIFEST, OutputError, check_out, claim
+from kosmap.mapping.runtime.outdir import MANIFEST, OutputError, check_out, claim
 from kosmap.mapping.pipeline import BUILD_FILES, build
 from tests.frontend.synthetic_log import copy_log
 from kosmap.tools.cli import main

@@ -1,4 +1,4 @@
-"""mapping/slamproc.py: a SLAM fed in its own process gives exactly the in-process result; its failures reach the
+"""mapping/runtime/slamproc.py: a SLAM fed in its own process gives exactly the in-process result; its failures reach the
 parent as errors that say what happened."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from kosmap.frontend.records import Odometry
 from kosmap.mapping.config import load_config
 from kosmap.mapping.pipeline import SlamFeed
 from kosmap.mapping.slam import Slam
-from kosmap.mapping.slamproc import RemoteFeed, _events
+from kosmap.mapping.runtime.slamproc import RemoteFeed, _events
 
 
 def _corridor_scan(x: float, rng) -> np.ndarray:
@@ -171,7 +171,7 @@ def test_advance_to_the_end_is_never_merged_away():
 
 
 def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with_its_parent_goes_too(tmp_path):
-    from kosmap.mapping.slamproc import SlamProcessError
+    from kosmap.mapping.runtime.slamproc import SlamProcessError
 
     remote = RemoteFeed(_feed(), "laser")
     try:

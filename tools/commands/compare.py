@@ -19,7 +19,7 @@ def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, bluep
     from kosmap.mapping.compare import compare, metrics_markdown, overlay_picture
     from kosmap.mapping.config import config_dict
     from kosmap.mapping.mapio import _atomic_write_bytes, read_blueprint, read_map_server, write_png
-    from kosmap.mapping.outdir import check_out, writing
+    from kosmap.mapping.runtime.outdir import check_out, writing
 
     if (b_path is None) == (blueprint is None):
         raise KosmapError("give exactly one reference: a second map (B.yaml) or --blueprint BP")

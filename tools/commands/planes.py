@@ -23,7 +23,7 @@ from kosmap.frontend.errors import KosmapError, LogError
 from kosmap.frontend.fspf import filter_planes, frame_seed, warmup
 from kosmap.frontend.logs.images import camera_model, check_depth_scale, read_camera_file
 from kosmap.frontend.planes import Planes
-from kosmap.mapping.outdir import check_out
+from kosmap.mapping.runtime.outdir import check_out
 from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
 from kosmap.tools import options as O
 

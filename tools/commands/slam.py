@@ -32,7 +32,7 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Scan-to-submap odometry, loop closure and a gtsam pose graph over LOG; writes trajectory.tum,
         keyframes.tum, graph.g2o, metrics.json, map.png + map.pgm/map.yaml and config.toml into --out."""
-        from kosmap.mapping.outdir import check_out, writing
+        from kosmap.mapping.runtime.outdir import check_out, writing
         from kosmap.mapping.slam import build_map, evaluate, run_slam, save_run, summary
 
         out = check_out(out)  # before the run, not after it

@@ -21,8 +21,8 @@ from typing import Any
 import numpy as np
 
 from kosmap.frontend.errors import KosmapError
-from kosmap.mapping.childproc import die_with_parent, set_name
-from kosmap.mapping.framepool import peak_rss_mb, sendable_error
+from kosmap.mapping.runtime.childproc import die_with_parent, set_name
+from kosmap.mapping.runtime.framepool import peak_rss_mb, sendable_error
 
 
 class SlamProcessError(KosmapError):
@@ -31,7 +31,7 @@ class SlamProcessError(KosmapError):
 
 def _as_child(name: str, parent_pid: int) -> None:
     """Show the process as `name` (tools/bench_pipeline.py tells the SLAM processes from the frame workers by it),
-    and die with the parent: the pipe cannot tell (mapping/childproc.py)."""
+    and die with the parent: the pipe cannot tell (mapping/runtime/childproc.py)."""
     set_name(name)
     die_with_parent(parent_pid)
 

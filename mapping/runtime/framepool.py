@@ -40,7 +40,7 @@ from kosmap.frontend.fspf import FspfConfig, warmup
 from kosmap.frontend.kos import Bearings, KosConfig
 from kosmap.frontend.kosframe import KosFrame, kos_frame
 from kosmap.frontend.records import DepthFrame
-from kosmap.mapping.childproc import die_with_parent
+from kosmap.mapping.runtime.childproc import die_with_parent
 
 _CONFIGS: tuple | None = None  # (fspf, depth, kos) configs of this worker process
 _SLOTS: mmap.mmap | None = None  # the shared depth slots (inherited at fork)
