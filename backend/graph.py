@@ -83,7 +83,7 @@ class GraphConfig(StageConfig):
     manhattan_gate_deg: float = param(5.0, lo=0.0, lo_open=True, doc="walls farther than this off the axes make no prior", unit="deg")
     calibrate_rebase: bool = param(True, doc="each calibration while running also re-solves the graph with the new scale and bias and restarts ISAM2 from there (else only later factors use them)")
     imu: bool = param(True, doc="use the log's gyro (sensor_msgs/Imu yaw rate) when it has one")
-    imu_frontend: bool = param(False, doc="the front end's motion prediction takes its yaw from the gyro (translation from the wheels); on for KOS (mapping.slam.KOS_GRAPH), off for a laser (simulated office, 40 Hz laser: ATE 0.028 m off, 0.044 m on)")
+    imu_frontend: bool = param(False, doc="the front end's motion prediction takes its yaw from the gyro (translation from the wheels); on for KOS (backend/kosprofile.py KOS_GRAPH), off for a laser (simulated office, 40 Hz laser: ATE 0.028 m off, 0.044 m on)")
     gyro_noise_density_deg: float = param(0.01, lo=0.0, lo_open=True, doc="gyro white noise density (consumer MEMS ≈ 0.005–0.015)", unit="deg/s/√Hz")
     gyro_bias: str = param("estimate", choices=("estimate", "fixed"), doc="gyro bias: a graph variable (final solve) or left in the noise")
     gyro_bias_sigma_deg_s: float = param(0.05, lo=0.0, lo_open=True, doc="prior σ of the gyro bias (turn-on bias of a consumer MEMS part)", unit="deg/s")

@@ -5,7 +5,7 @@ both ends), exact for a rate linear in time. Its noise ([graph] gyro_* keys):
 σ² = N²·Δt (white rate noise, N the noise density) + (σ_b·Δt)² (bias not estimated) + floor².
 Intervals the samples do not cover, with a gap between samples, or overlapping a run of identical outputs
 lasting ≥ `stuck_s` (a stuck MEMS part: real rate noise never repeats a float exactly) give no increment;
-the caller counts and reports them (mapping/slam.py keeps a stuck stretch only where the robot did not turn:
+the caller counts and reports them (backend/slam.py keeps a stuck stretch only where the robot did not turn:
 a coarse gyro at rest may repeat its value). The gyro is never trusted blindly.
 """
 

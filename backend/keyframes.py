@@ -22,7 +22,7 @@ class Keyframe:
     scan_index: int  # index of the scan in the run
     stamp_ns: int
     local_pose: np.ndarray  # (3,) front-end pose
-    points: np.ndarray  # N×2 scan end points in base_link (mapping/slam.py empties it once the loop closer has its copy)
+    points: np.ndarray  # N×2 scan end points in base_link (backend/slam.py empties it once the loop closer has its copy)
     odom_pose: np.ndarray | None = None  # (3,) wheel odometry
     score: float = float("nan")  # front-end match score
     cov: np.ndarray | None = None  # (3, 3) covariance of the front-end match, map frame (None: unknown)

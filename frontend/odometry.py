@@ -30,14 +30,6 @@ from kosmap.frontend import se2
 from kosmap.frontend.params import StageConfig, param
 
 
-# Overrides for a narrow depth-camera (KOS-like) scan, 70° and ≤ 4.5 m: hold along-track and across-track
-# position to the odometry (one wall in view), no correlative search or recovery (they slide onto the
-# known map). Measured on the simulator's office with a 70.6° 4.5 m 15 Hz scanner: default laser settings
-# 8.4 m ATE; these 0.14 m (odometry alone 0.26 m; front end alone 0.20 m). A starting point for KOS.
-NARROW_SCAN = {"prior_weight": 100.0, "prior_weight_along": 1000.0, "search_linear": 0.0, "search_angular_deg": 0.0,
-               "recovery_ratio": 0.0}
-
-
 @dataclass
 class OdometryConfig(StageConfig):
     """[odometry]: the scan-matching front end and its keyframes. Defaults: one set for every benchmark log."""

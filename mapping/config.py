@@ -17,10 +17,30 @@ from kosmap.frontend.fspf import FspfConfig
 from kosmap.frontend.kos import KosConfig
 from kosmap.frontend.logs.topics import TopicsConfig
 from kosmap.frontend.odometry import OdometryConfig
+from kosmap.frontend.params import StageConfig, param
 from kosmap.mapping.compare import CompareConfig
 from kosmap.mapping.grid import GridConfig
 from kosmap.mapping.localize_config import LocalizeConfig
-from kosmap.mapping.pipeline_config import BuildConfig
+
+
+@dataclass
+class BuildConfig(StageConfig):
+    """[build]: rates, the KOS scan SLAM runs on, its SLAM settings, the extra maps and the MCAP's contents."""
+
+    section = "build"
+    depth_rate: float = param(10.0, lo=0.0, doc="process at most this many depth frames per second and camera (0 = every frame): SLAM needs ~10 Hz, the maps take 5 Hz, and every frame of a 30 Hz camera costs 3× the CPU for no better map (docs/bench/pipeline.md)", unit="Hz")
+    laser_rate: float = param(10.0, lo=0.0, doc="laser scans used for SLAM, at most this many per second (0 = every scan; a laser averaging no more than 1.2× this keeps every scan); the laser map takes laser_map_rate of them", unit="Hz")
+    kos_map_rate: float = param(5.0, lo=0.0, doc="KOS steps integrated into the grids, at most this many per second (0 = every step): at 30 Hz the misses of grazing beams wear thin walls away", unit="Hz")
+    laser_map_rate: float = param(5.0, lo=0.0, doc="laser (and fused) scans integrated into the grids, at most this many per second (0 = every scan SLAM used): each de-skewed with the twist from the scan before it, as at the full rate", unit="Hz")
+    slam_scan: str = param("obstacle", doc="the KOS scan SLAM runs on: obstacle, or a level's name such as h0_75")
+    kos_odometry: dict = param({}, doc="[odometry] values for the KOS scans (a narrow depth scan) over the KOS profile (backend/kosprofile.py)")
+    kos_graph: dict = param({}, doc="[graph] values for the KOS scans over the KOS profile (backend/kosprofile.py)")
+    kos_on_laser_poses: bool = param(True, doc="also map the KOS obstacle scan at the laser SLAM's poses (KOS without KOS SLAM's error)")
+    fused_map: bool = param(True, doc="also map the obstacle scan fused with the laser, at the laser SLAM's poses")
+    compare_levels: bool = param(False, doc="compare every KOS level with the blueprint (else the SLAM scan's map only)")
+    mcap_planes_period: float = param(1.0, lo=0.0, doc="MCAP: the plane points of one frame every this many seconds (0 = none)", unit="s")
+    mcap_plane_points: int = param(4000, lo=1, doc="MCAP: at most this many plane points per cloud (a seeded subsample)")
+    in_flight: int = param(0, lo=0, doc="depth frames in flight to the worker processes (0 = 3 per worker)")
 
 
 @dataclass

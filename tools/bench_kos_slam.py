@@ -3,7 +3,7 @@
     .venv/bin/python -m kosmap.tools.bench_kos_slam LOG.mcap [LOG.mcap …] [--rates 10 5] [--laser] [--cache DIR] [--out docs]
 
 Per log, the depth frames go through FSPF+ and KOS once (at the highest rate asked) and the SLAM inputs are
-recorded: every call the run makes to mapping.pipeline.SlamFeed (odometry, KOS scans, IMU samples, and when log
+recorded: every call the run makes to mapping.slamfeed.SlamFeed (odometry, KOS scans, IMU samples, and when log
 time advanced), pickled in --cache keyed by the log's path, size and mtime. Each SLAM configuration then replays
 them into a fresh Slam in seconds, feeding exactly what `kosmap slam --source kos` feeds. A lower depth rate keeps
 every scan at least 1/rate after the previous kept one (KosStream's min_period does the same on frames).
@@ -50,12 +50,11 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     path = cache / f"{log.stem}-{_key(log, rate)}.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
-    import kosmap.mapping.pipeline as P
     from kosmap.mapping import slam as S
     from kosmap.mapping.config import Config
 
     events: list = []
-    real = P.SlamFeed
+    real = S.SlamFeed  # the feed run_slam makes
 
     class Recorder(real):
         def odom(self, rec):
@@ -81,11 +80,11 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     cfg = Config()
     cfg.build.depth_rate = rate
     t0 = time.perf_counter()
-    P.SlamFeed = Recorder
+    S.SlamFeed = Recorder
     try:
         r = S.run_slam(log, cfg, source="kos")
     finally:
-        P.SlamFeed = real
+        S.SlamFeed = real
     doc = {"events": events, "gt": r.ground_truth, "kos_seconds": time.perf_counter() - t0,
            "ate_full_run": S.evaluate(r)["ate"]["rmse"]}
     cache.mkdir(parents=True, exist_ok=True)
@@ -99,13 +98,15 @@ def replay(doc: dict, rate: float, **graph) -> dict:
     """SLAM on recorded inputs with [graph] overrides (over the KOS graph defaults); accuracy and calibration."""
     from kosmap.frontend.records import Odometry
     from kosmap.mapping import slam as S
+    from kosmap.backend.kosprofile import kos_graph_config, kos_odometry_config
+    from kosmap.backend.slam import Slam
     from kosmap.mapping.config import Config
-    from kosmap.mapping.pipeline import SlamFeed
+    from kosmap.mapping.slamfeed import SlamFeed
 
     cfg = Config()
     cfg.build.depth_rate = rate
-    gcfg = dataclasses.replace(S.kos_graph_config(cfg), **graph)
-    slam = S.Slam(S.kos_odometry_config(cfg), gcfg)
+    gcfg = dataclasses.replace(kos_graph_config(cfg), **graph)
+    slam = Slam(kos_odometry_config(cfg), gcfg)
     has_imu = any(e[0] == "i" for e in doc["events"])
     feed = SlamFeed(slam, True, has_imu)
     period = int(1e9 / rate) - 10_000_000 if rate > 0 else 0

@@ -67,8 +67,8 @@ def office_log(minutes: float) -> tuple[Path, Path]:
 
 def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]) -> None:
     """Child mode: build, then print the metrics that matter and this process's peak memory as JSON."""
+    from kosmap.mapping.build import build
     from kosmap.mapping.config import load_config
-    from kosmap.mapping.pipeline import build
 
     load0 = os.getloadavg()[0]
     cpu0 = _cpu_times()
@@ -234,16 +234,16 @@ STAGES = [
     ("  FSPF+ (filter_planes)", "frontend/fspf.py", "filter_planes"),
     ("  KOS (KosAccumulator.add_depth)", "frontend/kos.py", "add_depth"),
     ("  depth to metres", "mapping/runtime/framepool.py", "in_meters"),
-    ("steps: merge cameras, KOS scans (KosStream._finish)", "mapping/kosscan.py", "_finish"),
-    ("spill and fused scan (on_step)", "mapping/pipeline.py", "on_step"),
-    ("stats.csv, plane clouds (on_frame)", "mapping/pipeline.py", "on_frame"),
-    ("SLAM, both: scans in (Slam.add_scan)", "mapping/slam.py", "add_scan"),
-    ("SLAM, both: final solve (Slam.finish)", "mapping/slam.py", "finish"),
-    ("pass 1 in all", "mapping/pipeline.py", "_pass1"),
-    ("pass 2: grids (_grid_job)", "mapping/pipeline.py", "_grid_job"),
-    ("pass 2: Foxglove MCAP (_write_mcap)", "mapping/pipeline.py", "_write_mcap"),
-    ("comparisons (_compare_job)", "mapping/pipeline.py", "_compare_job"),
-    ("metrics", "mapping/pipeline.py", "_metrics"),
+    ("steps: merge cameras, KOS scans (KosStream._finish)", "mapping/kosstream.py", "_finish"),
+    ("spill and fused scan (on_step)", "mapping/build/readpass.py", "on_step"),
+    ("stats.csv, plane clouds (on_frame)", "mapping/build/readpass.py", "on_frame"),
+    ("SLAM, both: scans in (Slam.add_scan)", "backend/slam.py", "add_scan"),
+    ("SLAM, both: final solve (Slam.finish)", "backend/slam.py", "finish"),
+    ("pass 1 in all", "mapping/build/readpass.py", "read"),
+    ("pass 2: grids (grid_job)", "mapping/build/grids.py", "grid_job"),
+    ("pass 2: Foxglove MCAP (write_mcap)", "mapping/build/mcap.py", "write_mcap"),
+    ("comparisons (compare_job)", "mapping/build/compares.py", "compare_job"),
+    ("metrics", "mapping/build/metrics.py", "build_metrics"),
     ("report (write_report)", "mapping/report.py", "write_report"),
 ]
 
@@ -254,8 +254,8 @@ def account(log: str, out: str, blueprint: str, sets: list[str]) -> None:
     import cProfile
     import pstats
 
+    from kosmap.mapping.build import build
     from kosmap.mapping.config import load_config
-    from kosmap.mapping.pipeline import build
 
     pr = cProfile.Profile(time.thread_time)
     c0, m0 = time.process_time(), time.thread_time()
@@ -623,7 +623,7 @@ def memory_section(doc: dict) -> list[str]:
           "temporary file, read back in chunks; the plane points keep no per-point stamp); at most `[build] "
           "in_flight` frames (3 per worker) are queued, their depth in a ring of shared-memory slots "
           "(mapping/runtime/framepool.py). Per scan fed to SLAM: 65 bytes (stamp, front-end pose, odometry, flags: compact "
-          "arrays, mapping/slam.py) and 8 bytes of spill index. Per keyframe: the loop closer's thinned float32 "
+          "arrays, backend/slam.py) and 8 bytes of spill index. Per keyframe: the loop closer's thinned float32 "
           "points in its submaps (a keyframe's full scan is dropped once they are taken), the pose-graph node and "
           "factors (gtsam), the keyframe record; the loop closer's likelihood fields are an LRU cache "
           "(`[graph] loop_field_cache`). Measured: the pose graph (gtsam ISAM2 and the edge records) ~7.6 kB a node "

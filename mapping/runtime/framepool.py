@@ -63,7 +63,7 @@ def _ping() -> int:
 
 
 def in_meters(item: DepthItem) -> DepthItem:
-    """The item with its depth in metres: a uint16 image is raw 16UC1 millimetres (mapping/kosscan.py leaves the
+    """The item with its depth in metres: a uint16 image is raw 16UC1 millimetres (mapping/kosstream.py leaves the
     conversion to the frame stage, DepthFrame.meters)."""
     if item.depth.dtype == np.uint16:
         return dataclasses.replace(item, depth=DepthFrame(item.stamp_ns, item.depth, "16UC1").meters())
@@ -289,7 +289,7 @@ class FramePool:
 
     @property
     def executor(self) -> ProcessPoolExecutor | None:
-        """The worker processes (None when serial), their frame loops ended: mapping/pipeline.py runs its grid and
+        """The worker processes (None when serial), their frame loops ended: the build (mapping/build/jobs.py) runs its grid and
         comparison jobs there after the frames, instead of forking new workers from a process that has grown
         meanwhile. Frames cannot be submitted after this."""
         self._stop_loops()

@@ -114,7 +114,7 @@ def _sigint_held():
 
 
 class RemoteFeed:
-    """A `SlamFeed` (mapping/pipeline.py) run in a forked process; the same methods. Fork it before any thread
+    """A `SlamFeed` (mapping/slamfeed.py) run in a forked process; the same methods. Fork it before any thread
     starts (the frame pool's, the read-ahead's)."""
 
     BATCH = 256  # calls per message through the pipe

@@ -153,7 +153,7 @@ def test_build_deskews_a_spinning_lasers_scans(tmp_path):
     precision at 0.05 m 0.85 vs 0.73."""
     from kosmap.mapping.config import Config
     from kosmap.mapping.mapio import write_map_server
-    from kosmap.mapping.pipeline import build
+    from kosmap.mapping.build import build
     from kosmap.tools.simulate import SimConfig, load_world, simulate
     from kosmap.tools.simulate.world import path_from_dict
 

@@ -28,7 +28,7 @@ def _items(n: int) -> list[DepthItem]:
         d = np.minimum(np.full((48, 64), wall, np.float32), floor).astype(np.float32)
         d += rng.normal(0.0, 0.004, d.shape).astype(np.float32)
         d[rng.random(d.shape) < 0.05] = 0.0
-        if i % 2 == 0:  # raw 16UC1, as mapping/kosscan.py passes it
+        if i % 2 == 0:  # raw 16UC1, as mapping/kosstream.py passes it
             depth = np.round(np.clip(d, 0.0, 60.0) * 1000.0).astype(np.uint16)
         else:
             depth = (np.round(np.clip(d, 0.0, 60.0) * 1000.0) * np.float32(0.001)).astype(np.float32)
@@ -83,7 +83,7 @@ def test_uint16_is_millimetres():
 
 def test_a_frames_error_comes_back_and_the_workers_then_serve_other_jobs():
     """A frame that fails in a worker raises its own error here, in its place in the order; after the frames, the
-    same workers run other jobs (pipeline.py's grids and comparisons)."""
+    same workers run other jobs (the build's grids and comparisons)."""
     import pytest
 
     items = _items(4)

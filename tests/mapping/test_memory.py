@@ -11,8 +11,8 @@ import pytest
 
 from kosmap.backend.graph import GraphConfig
 from kosmap.frontend.odometry import OdometryConfig, scan_to_points
-from kosmap.mapping.pipeline import Spill
-from kosmap.mapping.slam import Slam
+from kosmap.backend.slam import Slam
+from kosmap.mapping.build.spill import Spill
 from tests.mapping.synthetic_laser import make_log
 
 
@@ -105,7 +105,7 @@ def test_a_republished_tf_static_is_kept_once(tmp_path):
     from kosmap.frontend.records import DepthFrame, Transforms
     from kosmap.mapping.config import load_config
     from kosmap.mapping.mapio import read_map_server
-    from kosmap.mapping.pipeline import build
+    from kosmap.mapping.build import build
     from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "room.mcap"

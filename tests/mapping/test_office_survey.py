@@ -5,7 +5,7 @@ log, built with the blueprint. Required: the KOS map vs the blueprint F1 ≥ 0.9
 the report.
 
 The KOS map on its own SLAM needs the running estimate rebased at each calibration and the Manhattan heading priors
-(mapping.slam.KOS_GRAPH): a one-pass survey with a 70° forward camera closes few loops, and without them the graph's
+(backend/kosprofile.py KOS_GRAPH): a one-pass survey with a 70° forward camera closes few loops, and without them the graph's
 heading drifted (F1 0.717 at KOS SLAM ATE 0.218 m before either, 0.869 with the rebase alone).
 
 The default (demo) path never enters the side rooms: the Kinect sees 58 % of the plan's wall faces from it, so no
@@ -17,7 +17,7 @@ from __future__ import annotations
 import pytest
 
 from kosmap.mapping.config import Config
-from kosmap.mapping.pipeline import build
+from kosmap.mapping.build import build
 
 
 @pytest.fixture(scope="module")

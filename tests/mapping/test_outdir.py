@@ -12,7 +12,7 @@ import pytest
 from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping.config import load_config
 from kosmap.mapping.runtime.outdir import MANIFEST, OutputError, check_out, claim
-from kosmap.mapping.pipeline import BUILD_FILES, build
+from kosmap.mapping.build import BUILD_FILES, build
 from tests.frontend.synthetic_log import copy_log
 from kosmap.tools.cli import main
 
@@ -118,15 +118,15 @@ def test_a_failed_build_leaves_nothing_that_looks_like_a_result(laser_log, tmp_p
 
 @pytest.mark.slow
 def test_sigterm_stops_a_build_and_removes_what_it_wrote(laser_log, tmp_path, monkeypatch, capsys):
-    import kosmap.mapping.pipeline as pipeline
+    import kosmap.mapping.build.run as run
 
-    warm = pipeline._warm_grid
+    warm = run.warm_grid
 
     def terminate_now():  # SIGTERM arrives mid-build, once the temporary folder exists
         warm()
         os.kill(os.getpid(), signal.SIGTERM)
 
-    monkeypatch.setattr(pipeline, "_warm_grid", terminate_now)
+    monkeypatch.setattr(run, "warm_grid", terminate_now)
     out = tmp_path / "out"
     (tmp_path / "out").mkdir()
     (out / "notes.txt").write_text("mine")

@@ -1,4 +1,4 @@
-"""`mapping.pipeline.build` end to end on short simulated logs of the room world: serial and parallel runs give
+"""`mapping.build.build` end to end on short simulated logs of the room world: serial and parallel runs give
 identical maps; a log without a laser, without depth or with neither; an interrupted run writes partial outputs;
 every output exists and parses."""
 
@@ -19,7 +19,7 @@ from kosmap.frontend.logs.writer import McapWriter
 from kosmap.frontend.records import CameraModel, DepthFrame, Scan
 from kosmap.mapping.config import load_config
 from kosmap.mapping.mapio import read_map_server, write_map_server
-from kosmap.mapping.pipeline import Progress, build
+from kosmap.mapping.build import Progress, build
 from tests.frontend.synthetic_log import copy_log
 
 # lean settings for seconds-long logs: the room's 11 m loop from its start, a cloud every 0.5 s in the MCAP
@@ -209,7 +209,7 @@ def test_two_cameras_give_identical_steps_serial_and_parallel(tmp_path):
     """The KOS stream of `kosmap scan` and `kosmap build`: front and rear camera merged per step, fused with the
     nearest laser scan, the same whether the frames run here or in a pool (whose results arrive late)."""
     from kosmap.mapping.config import Config
-    from kosmap.mapping.kosscan import ScanRun, kos_steps
+    from kosmap.mapping.kosstream import ScanRun, kos_steps
     from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "two.mcap"
@@ -229,19 +229,20 @@ def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     each, and come back in the fixed order of the pairs whatever the order the maps finished in. The maps made on
     the laser SLAM's poses (fused, KOS at the laser's poses) go with the laser map's job: its alignment is theirs."""
     from kosmap.mapping.grid import OccupancyGrid
-    from kosmap.mapping.pipeline import _Compares, _Done
+    from kosmap.mapping.build.compares import Compares
+    from kosmap.mapping.build.jobs import Done
 
     submitted = []
 
     class Jobs:
         def submit(self, fn, a, b, ccfg, more=()):
             submitted.append((a.frame_id, b.frame_id, *(m.frame_id for m in more)))
-            return _Done([({"a": g.frame_id, "alignment": {}}, np.zeros((2, 2, 3), np.uint8), None) for g in (a, *more)])
+            return Done([({"a": g.frame_id, "alignment": {}}, np.zeros((2, 2, 3), np.uint8), None) for g in (a, *more)])
 
     def grid(name):
         return OccupancyGrid(np.zeros((2, 2), np.int8), 0.05, frame_id=name)
 
-    c = _Compares(grid("blueprint"), load_config(None, []), Jobs())
+    c = Compares(grid("blueprint"), load_config(None, []), Jobs())
     c.expect(["kos_h0_30", "kos_obstacle", "laser", "fused"])
     assert c.pairs == [("kos_obstacle", "blueprint"), ("laser", "blueprint"), ("fused", "blueprint"),
                        ("kos_obstacle", "laser")]
@@ -263,9 +264,9 @@ def test_each_comparison_starts_when_its_two_maps_exist(tmp_path):
     # the laser map does not align: the map on its poses says so, not "map A"
     class Failing(Jobs):
         def submit(self, fn, a, b, ccfg, more=()):
-            return _Done([(None, None, "map A has fewer than 3 wall cells: nothing to align")] * (1 + len(more)))
+            return Done([(None, None, "map A has fewer than 3 wall cells: nothing to align")] * (1 + len(more)))
 
-    c = _Compares(grid("blueprint"), load_config(None, []), Failing())
+    c = Compares(grid("blueprint"), load_config(None, []), Failing())
     c.expect(["laser", "fused"])
     for name in ("laser", "fused"):
         c.grid_ready(name, grid(name))

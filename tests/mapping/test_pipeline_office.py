@@ -14,7 +14,7 @@ from __future__ import annotations
 import pytest
 
 from kosmap.mapping.config import Config
-from kosmap.mapping.pipeline import build
+from kosmap.mapping.build import build
 
 
 @pytest.fixture(scope="module")

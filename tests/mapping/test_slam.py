@@ -14,7 +14,8 @@ from kosmap.frontend.logs.writer import McapWriter
 from kosmap.frontend.odometry import OdometryConfig, scan_points_base
 from kosmap.frontend.records import Scan
 from kosmap.mapping.config import Config
-from kosmap.mapping.slam import Slam, evaluate, run_slam, save_run
+from kosmap.backend.slam import Slam
+from kosmap.mapping.slam import evaluate, run_slam, save_run
 from tests.mapping.synthetic_laser import make_log, records
 
 

@@ -15,7 +15,9 @@ from kosmap.frontend.logs.writer import McapWriter
 from kosmap.frontend.odometry import OdometryConfig, scan_points_base
 from kosmap.frontend.records import Imu
 from kosmap.mapping.config import Config
-from kosmap.mapping.slam import KOS_FRONTEND, Slam, evaluate, run_slam, summary
+from kosmap.backend.kosprofile import KOS_FRONTEND
+from kosmap.backend.slam import Slam
+from kosmap.mapping.slam import evaluate, run_slam, summary
 from tests.mapping.synthetic_laser import make_log, records
 
 SCALE = 0.03  # the injected wheel-odometry scale error

@@ -12,8 +12,8 @@ import pytest
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.records import Odometry
 from kosmap.mapping.config import load_config
-from kosmap.mapping.pipeline import SlamFeed
-from kosmap.mapping.slam import Slam
+from kosmap.backend.slam import Slam
+from kosmap.mapping.slamfeed import SlamFeed
 from kosmap.mapping.runtime.slamproc import RemoteFeed, _events
 
 
@@ -186,8 +186,9 @@ def test_a_slam_process_killed_while_solving_fails_the_build_and_one_killed_with
     import sys
     import time
 
-    code = ("import time; from mapping.config import load_config; from mapping.pipeline import SlamFeed; "
-            "from mapping.slam import Slam; from mapping.slamproc import RemoteFeed; c = load_config(None, []); "
+    code = ("import time; from kosmap.mapping.config import load_config; from kosmap.mapping.slamfeed import SlamFeed; "
+            "from kosmap.backend.slam import Slam; from kosmap.mapping.runtime.slamproc import RemoteFeed; "
+            "c = load_config(None, []); "
             "r = RemoteFeed(SlamFeed(Slam(c.odometry, c.graph), False), 'laser'); print(r._proc.pid, flush=True); "
             "time.sleep(60)")
     p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)

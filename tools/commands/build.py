@@ -1,4 +1,4 @@
-"""`kosmap build LOG --out DIR [--blueprint BP.yaml]`: every map of a log, compared, with a report (mapping/pipeline.py)."""
+"""`kosmap build LOG --out DIR [--blueprint BP.yaml]`: every map of a log, compared, with a report (mapping/build/)."""
 
 from __future__ import annotations
 
@@ -51,15 +51,16 @@ def register(app: typer.Typer) -> None:
         """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
         with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
         Ctrl-C stops reading and writes what is done, marked partial (exit code 130); a second Ctrl-C aborts."""
-        from kosmap.mapping.pipeline import build as run
+        from kosmap.mapping.build import build as run
+        from kosmap.tools.progress import build_bar
 
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         if blueprint_scale is not None and blueprint is None:
             raise KosmapError("--blueprint-scale belongs to --blueprint (a plain image's metres per pixel)")
-        show = not quiet and sys.stderr.isatty()
-        res = run(log, out, cfg, blueprint=blueprint, workers=workers, progress=show,
-                  say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale,
-                  reads=() if config is None else (config,))
+        with build_bar(quiet) as tick:
+            res = run(log, out, cfg, blueprint=blueprint, workers=workers, on_progress=tick,
+                      say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale,
+                      reads=() if config is None else (config,))
         if not quiet:
             print_headline(res.metrics, out)
         if res.partial:

@@ -21,6 +21,7 @@ import typer
 
 from kosmap.tools import options as O
 from kosmap.tools.data import REPO
+from kosmap.tools.progress import seconds_bar
 
 DEMO_WORLD = "office"
 DEMO_SIM = {"seed": 1, "depth_rate": 5.0, "laser_rate": 10.0, "compression": "lz4"}
@@ -30,9 +31,9 @@ CACHE = REPO / ".kosmap-cache" / "demo"
 WARM_UP = """
 import pathlib, shutil, sys, tempfile
 import numpy as np
+from kosmap.mapping.build import build
 from kosmap.mapping.config import Config
 from kosmap.mapping.mapio import write_map_server
-from kosmap.mapping.pipeline import build
 from kosmap.tools.simulate import SimConfig, load_world, simulate
 from kosmap.tools.simulate.world import PathSpec
 d = pathlib.Path(tempfile.mkdtemp(prefix="kosmap-warmup-"))
@@ -85,15 +86,8 @@ def demo_log(cache: Path | None = None, fresh: bool = False, quiet: bool = False
         old.unlink()
     t0 = time.perf_counter()
     warming = warm_up()
-    if not quiet and sys.stderr.isatty():
-        from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
-        with Progress(TextColumn(f"simulating the {DEMO_WORLD}"), BarColumn(), TextColumn("{task.fields[t]:.0f} s of log"),
-                      TimeRemainingColumn(), transient=True) as prog:
-            task = prog.add_task("sim", total=1.0, t=0.0)
-            simulate(world, cfg, log, way, progress=lambda t, T: prog.update(task, completed=t / T, t=t))
-    else:
-        simulate(world, cfg, log, way)
+    with seconds_bar(f"simulating the {DEMO_WORLD}", "{task.fields[t]:.0f} s of log", quiet) as tick:
+        simulate(world, cfg, log, way, progress=tick)
     warming.wait()  # the build must not compile the same kernels beside it
     return log, bp, time.perf_counter() - t0
 
@@ -110,16 +104,18 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """Simulate the bundled office (Kinect + laser + wheel odometry, cached after the first run), build its KOS
         and laser maps, compare them with the blueprint and each other; print where the report is."""
+        from kosmap.mapping.build import build
         from kosmap.mapping.config import Config
-        from kosmap.mapping.pipeline import build
         from kosmap.tools.commands.build import print_headline
+        from kosmap.tools.progress import build_bar
 
         t0 = time.perf_counter()
         log, bp, sim_s = demo_log(fresh=fresh, quiet=quiet, path="survey" if survey else None)
         if not quiet:
             print(f"log: {log} " + ("(cached)" if sim_s is None else f"(simulated in {sim_s:.0f} s)"), file=sys.stderr)
-        res = build(log, out, Config(), blueprint=bp, workers=workers, progress=not quiet and sys.stderr.isatty(),
-                    say=None if quiet else (lambda m: print(m, file=sys.stderr)))
+        with build_bar(quiet) as tick:
+            res = build(log, out, Config(), blueprint=bp, workers=workers, on_progress=tick,
+                        say=None if quiet else (lambda m: print(m, file=sys.stderr)))
         print(f"kosmap demo: the {DEMO_WORLD}{' survey' if survey else ''} ({res.metrics['log']['duration_s']:.0f} s, Kinect at "
               f"{DEMO_SIM['depth_rate']:g} Hz, laser at {DEMO_SIM['laser_rate']:g} Hz) mapped in "
               f"{time.perf_counter() - t0:.0f} s")

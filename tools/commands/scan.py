@@ -27,6 +27,7 @@ def register(app: typer.Typer) -> None:
         """FSPF+ → KOS on every depth frame: LaserScans per level (+ obstacle, + fused with the laser) in an MCAP,
         the scan points as CSV, top-view figures, stats and the effective config."""
         from kosmap.mapping.kosscan import run_scan
+        from kosmap.tools.progress import items_bar
 
         sets = list(set_ or [])
         if levels is not None:
@@ -44,7 +45,8 @@ def register(app: typer.Typer) -> None:
         if figures < 0:
             raise KosmapError(f"--figures {figures} must be 0 or more")
         cfg = O.make_config(config, sets, depth_topic, info_topic, scan_topic, odom_topic)
-        s = run_scan(log, out, cfg, figures=figures, limit=limit)
+        with items_bar("KOS", "frames") as tick:
+            s = run_scan(log, out, cfg, figures=figures, limit=limit, on_progress=tick)
         fill = ", ".join(f"{k} {100 * v:.0f} %" for k, v in s["filled_fraction"].items())
         print(f"{s['steps']} scans per level written to {out / 'kos.mcap'} (levels {s['levels']}, band ±{s['band']} m)")
         print(f"bins filled: {fill}")

@@ -1,0 +1,319 @@
+"""The SLAM core: scans (points in base_link) and the wheel odometry and gyro at their stamps, one at a time →
+front end (frontend/odometry.py) → keyframes → loops → pose graph (gtsam ISAM2); `finish` solves the graph and gives
+every scan an optimised pose through its keyframe (backend/keyframes.py). A Scan stream is a Scan stream: the
+laser's or the narrow KOS scan (with the KOS profile, backend/kosprofile.py). mapping/slam.py reads a log into it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from array import array
+from collections import deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.imu import GyroBuffer
+from kosmap.backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
+from kosmap.backend.loops import LoopCloser, LoopConstraint
+from kosmap.backend.manhattan import ManhattanHeading
+from kosmap.frontend import se2
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.odometry import OdometryConfig, make_odometry
+from kosmap.frontend.records import Scan
+
+
+@dataclass
+class SlamResult:
+    """Poses of every scan (base_link in the map frame), the keyframes, the graph and where the time went."""
+
+    stamps_ns: np.ndarray  # (S,) scan stamps
+    poses: np.ndarray  # (S, 3) optimised
+    local_poses: np.ndarray  # (S, 3) front end only
+    odom_poses: np.ndarray  # (S, 3) wheel odometry at each scan (NaN where none)
+    matched: np.ndarray  # (S,) bool: the scan was matched (not only predicted)
+    key_of_scan: np.ndarray  # (S,) keyframe each scan hangs from
+    keyframes: list[Keyframe]
+    graph: PoseGraph
+    loops: list[LoopConstraint]
+    timings: dict
+    mount: np.ndarray = field(default_factory=lambda: np.zeros(3))  # sensor pose in base_link (x, y, yaw)
+    points: list[np.ndarray] | None = None  # per-scan end points (base_link, float32) when kept
+    scans: list[Scan] | None = None  # the Scan records, when kept (for the map)
+    ground_truth: tuple[np.ndarray, np.ndarray] | None = None  # (stamps s, N×3) from the log's ground-truth topic
+    duration_s: float = 0.0  # log time spanned by the scans
+    warnings: list[str] = field(default_factory=list)
+    recoveries: int = 0
+    loop_stats: dict = field(default_factory=dict)
+    imu_stats: dict = field(default_factory=dict)  # gyro factors made and intervals skipped (gap, stuck, uncovered)
+    heading_stats: dict | None = None  # Manhattan heading priors (backend/manhattan.py), when on
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return self.stamps_ns * 1e-9
+
+    def sensor_poses(self) -> np.ndarray:
+        """Poses of the scan's own frame (base_link ⊕ mount): what the benchmark relations relate."""
+        return se2.compose(self.poses, np.repeat(self.mount[None], len(self.poses), 0))
+
+    @property
+    def realtime_factor(self) -> float:
+        """Log seconds per second of SLAM: over the run's wall time (run_slam's "total"), else, where SLAM runs
+        beside the reading (`kosmap build`, which has no "total"), over the time of its own stages."""
+        t = self.timings.get("total") or sum(v for k, v in self.timings.items() if k != "read")
+        return self.duration_s / t if t > 0 else float("inf")
+
+
+class Slam:
+    """Online core: `add_scan` per scan, `finish` for the batch solve and per-scan poses."""
+
+    def __init__(self, odometry: OdometryConfig | None = None, graph: GraphConfig | None = None,
+                 keep_points: bool = False) -> None:
+        self.ocfg = odometry or OdometryConfig()
+        self.gcfg = graph or GraphConfig()
+        self.frontend = make_odometry(self.ocfg)
+        self.graph = PoseGraph(self.gcfg)
+        self.loops = LoopCloser(self.gcfg)
+        self.heading = ManhattanHeading(self.gcfg.manhattan_gate_deg) if self.gcfg.manhattan else None
+        self.select = KeyframeSelector(self.gcfg.node_distance, np.radians(self.gcfg.node_angle_deg), self.ocfg.min_points)
+        self.keyframes: list[Keyframe] = []
+        # per scan, compact (65 bytes a scan; lists of 3-vectors held ~220 more, tests/mapping/test_memory.py): stamp,
+        # front-end pose (x y yaw flattened), wheel odometry (NaN where none), matched, keyframe it hangs from
+        self.stamps = array("q")
+        self.local = array("d")
+        self.odom = array("d")
+        self.matched = array("b")
+        self.key_of_scan = array("q")
+        self.points: list[np.ndarray] | None = [] if keep_points else None
+        self.t = {"frontend": 0.0, "graph": 0.0, "loops": 0.0}
+        self.found: list[LoopConstraint] = []
+        self.since_update = 0  # nodes added since the last ISAM2 update
+        self.since_loop = 0  # loops added since the last ISAM2 update
+        self.calibrations = 0
+        # the gyro: samples buffered; a yaw factor per node interval once scans and samples are past its end
+        self.gyro = GyroBuffer(self.gcfg.gyro_max_gap_s, self.gcfg.gyro_stuck_s)
+        self.expect_imu = False  # the log has an IMU: node intervals wait for its samples
+        self.gyro_pending: deque[tuple[int, int, int, int, np.ndarray]] = deque()  # (a, b, t_a, t_b, rel)
+        self.imu_stats = {"samples": 0, "factors": 0, "gap": 0, "stuck": 0, "uncovered": 0, "frontend_yaw": 0,
+                          "frontend_disagree": 0}
+        self.imu_warnings: list[str] = []
+        self._prev_scan: tuple[int, np.ndarray] | None = None  # (stamp, raw wheel odometry) of the last scan
+        self._fused: np.ndarray | None = None  # wheel translation + gyro yaw, the front end's prediction
+
+    def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
+        """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
+        and a yaw rate (rad/s about base_link z). Samples may arrive ahead of the scans: a node interval's factor is
+        made at a later scan once the samples cover it (or at finish)."""
+        if not self.gcfg.imu:
+            return
+        if yaw_rate is None:
+            rec = stamp_ns
+            if not rec.has_angular_velocity:
+                return
+            stamp_ns, yaw_rate = rec.stamp_ns, rec.yaw_rate
+        self.expect_imu = True
+        self.gyro.add(int(stamp_ns), float(yaw_rate))
+        self.imu_stats["samples"] += 1
+
+    def add_imu_many(self, stamps_ns: np.ndarray, yaw_rates: np.ndarray) -> None:
+        """`add_imu(stamp, yaw_rate)` of each sample in order (an ImuSamples' stretch, or a batch from the build)."""
+        if not self.gcfg.imu or not len(stamps_ns):
+            return
+        self.expect_imu = True
+        self.gyro.add_many(stamps_ns, yaw_rates)
+        self.imu_stats["samples"] += len(stamps_ns)
+
+    def _gyro_settled(self, stamp_ns: int, now_ns: int) -> bool:
+        """The scans have reached `gyro_stuck_s` past the stamp and the samples cover it: a stuck run that began
+        before it has been seen. Decided at scan times only, never by how far the reader ran ahead of the scans
+        (a parallel run reads further ahead than a serial one; both must add the same factors at the same node)."""
+        t = stamp_ns + int(self.gcfg.gyro_stuck_s * 1e9)
+        return t <= now_ns and self.gyro.covers(t)
+
+    def _flush_gyro(self, final: bool, now_ns: int = 0) -> None:
+        """Gyro factors for the node intervals settled at scan time `now_ns` (`final`: all that are left)."""
+        t0 = time.perf_counter()
+        g = self.graph
+        while self.gyro_pending and (final or self._gyro_settled(self.gyro_pending[0][3], now_ns)):
+            a, b, ta, tb, rel = self.gyro_pending.popleft()
+            inc = self.gyro.integrate(ta, tb)
+            if inc.reason == "stuck" and abs(rel[2]) < STILL_YAW:
+                inc = self.gyro.integrate(ta, tb, allow_stuck=True)  # constant output, and the scans saw no turn either
+            if inc.ok:
+                g.add_gyro(a, b, inc.dyaw, inc.dt, rel[:2])
+                self.imu_stats["factors"] += 1
+            else:
+                self.imu_stats[inc.reason] += 1
+                if inc.reason == "stuck" and not any("stuck" in w for w in self.imu_warnings):
+                    self.imu_warnings.append(f"the gyro's output stayed constant for ≥ {self.gcfg.gyro_stuck_s:g} s while the "
+                                             f"robot turned (stuck?), from t = {self.gyro.stuck[0][0] * 1e-9:.1f} s: its "
+                                             f"samples there are dropped")
+        keep = self.gyro_pending[0][2] if self.gyro_pending else (self.keyframes[-1].stamp_ns if self.keyframes else 0)
+        if self._prev_scan is not None:
+            keep = min(keep, self._prev_scan[0])
+        self.gyro.drop_before(keep - int(1e9))
+        self.t["graph"] += time.perf_counter() - t0
+
+    def _predict_with_gyro(self, stamp_ns: int, odom_pose: np.ndarray | None) -> np.ndarray | None:
+        """The pose the front end predicts from: the wheel odometry's translation, the gyro's yaw (when the samples
+        cover the scan interval; otherwise the wheels' yaw). Identity to the front end when there is no gyro."""
+        if odom_pose is None or not ((self.gcfg.imu_frontend and self.expect_imu) or self.gcfg.calibrate_every):
+            self._prev_scan = None if odom_pose is None else (int(stamp_ns), np.asarray(odom_pose, dtype=float))
+            self._fused = None if odom_pose is None else np.asarray(odom_pose, dtype=float)
+            return odom_pose
+        odom_pose = np.asarray(odom_pose, dtype=float)
+        if self._prev_scan is None or self._fused is None:
+            fused = odom_pose.copy()
+        else:
+            t_prev, o_prev = self._prev_scan
+            inc = se2.between(o_prev, odom_pose)
+            inc[:2] /= self.graph.odom_scale  # 1 unless calibrated while running
+            gi = self.gyro.integrate(t_prev, int(stamp_ns)) if self.expect_imu and self.gcfg.imu_frontend else None
+            if gi is not None and gi.ok:
+                g = gi.dyaw - self.graph.gyro_bias * gi.dt
+                # a stuck run is only flagged once it has lasted gyro_stuck_s: until then a gyro that disagrees with the
+                # wheels by more than they can err in one scan step (σ ≈ 0.3° in a turn on the simulator) is not used
+                if abs(se2.wrap(g - inc[2])) <= max(FE_GYRO_TOL, 0.25 * abs(inc[2])):
+                    inc[2] = g
+                    self.imu_stats["frontend_yaw"] += 1
+                else:
+                    self.imu_stats["frontend_disagree"] += 1
+            fused = se2.compose(self._fused, inc)
+        self._prev_scan = (int(stamp_ns), odom_pose)
+        self._fused = fused
+        return fused
+
+    def add_scan(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None = None) -> None:
+        """One scan: points (N×2, base_link), the wheel odometry at its stamp (or None)."""
+        t0 = time.perf_counter()
+        if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3], int(stamp_ns)):
+            self._flush_gyro(final=False, now_ns=int(stamp_ns))
+        res = self.frontend.update(stamp_ns, points, self._predict_with_gyro(stamp_ns, odom_pose))
+        t1 = time.perf_counter()
+        self.t["frontend"] += t1 - t0
+        i = len(self.stamps)
+        self.stamps.append(int(stamp_ns))
+        self.local.extend(map(float, res.pose))
+        self.odom.extend(_NAN3 if odom_pose is None else map(float, odom_pose))
+        self.matched.append(bool(res.matched))
+        if self.points is not None:
+            self.points.append(np.asarray(points, dtype=np.float32))
+        if self.select(res.pose, len(points)):
+            cov = res.covariance(self.gcfg.match_n_eff) if self.gcfg.match_noise == "hessian" else None
+            kf = Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
+                          None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov)
+            self._add_keyframe(kf)
+            # the loop closer has taken its thinned float32 copy (backend/loops.py); the full scan is not kept for the
+            # whole run (5–17 KB a keyframe as float64: ~10 MB per 5 minutes of the office on both SLAMs)
+            kf.points = _NO_POINTS
+        self.key_of_scan.append(max(len(self.keyframes) - 1, 0))
+
+    def _add_keyframe(self, kf: Keyframe) -> None:
+        g = self.graph
+        t0 = time.perf_counter()
+        if kf.id == 0:
+            g.add_node(np.zeros(3))
+        else:
+            prev = self.keyframes[-1]
+            rel = se2.between(prev.local_pose, kf.local_pose)
+            g.add_node(se2.compose(g.est[prev.id], rel))
+            if kf.cov is not None and prev.cov is not None:
+                # honest: both ends' match covariances (large along what the scans cannot see) + the fixed part
+                cov = relative_covariance(prev.local_pose, prev.cov, kf.local_pose, kf.cov) + np.diag(g.match_sigmas(rel) ** 2)
+                if not (self.gcfg.odometry_factors and kf.odom_pose is not None and prev.odom_pose is not None):
+                    cov = _cap_covariance(cov)  # nothing else ties the nodes: a blind direction must not be singular
+                g.add_match(prev.id, kf.id, rel, cov=cov)
+            else:
+                g.add_match(prev.id, kf.id, rel)
+            if self.gcfg.odometry_factors and kf.odom_pose is not None and prev.odom_pose is not None:
+                g.add_odometry(prev.id, kf.id, se2.between(prev.odom_pose, kf.odom_pose))
+            if self.gcfg.imu and self.expect_imu:
+                self.gyro_pending.append((prev.id, kf.id, prev.stamp_ns, kf.stamp_ns, rel))
+        if self.heading is not None:
+            yaw = self.heading.observe(float(g.est[kf.id, 2]), kf.points)
+            if yaw is not None:
+                g.add_heading(kf.id, yaw)
+        self.keyframes.append(kf)
+        t1 = time.perf_counter()
+        self.t["graph"] += t1 - t0
+        if self.gcfg.loop_closure:
+            self.loops.add_node(kf, g)
+            if kf.id % self.gcfg.loop_search_every == 0:
+                # candidates are chosen, and searched, around the current estimate: the last solved pose
+                # composed with the front end's motion since (ISAM2 runs every `optimize_every` nodes)
+                for lc in self.loops.search(kf.id, g):
+                    g.add_loop(lc.a, lc.b, lc.rel, lc.score)
+                    self.found.append(lc)
+                    self.since_loop += 1
+        t2 = time.perf_counter()
+        self.t["loops"] += t2 - t1
+        self.since_update += 1
+        if self.since_update >= self.gcfg.optimize_every:
+            g.update(full=self.since_loop > 0)
+            self.since_update = self.since_loop = 0
+        every = self.gcfg.calibrate_every
+        if every and kf.id and kf.id % every == 0:
+            # the scale and bias while running: the front end pulls its along-track position hard towards the wheel
+            # prediction (a narrow scan sees nothing along a corridor), so an uncorrected scale biases the matches
+            # themselves and the final estimate towards 1 (synthetic ring, 3 % injected: 1.014 found; the front end
+            # fed the true scale: 1.031, ATE 0.13 → 0.02 m)
+            g.calibrate(rebase=self.gcfg.calibrate_rebase)
+            self.calibrations += 1
+        elif (self.gcfg.gyro_bias_every and self.gcfg.gyro_bias == "estimate" and self.imu_stats["factors"]
+              and kf.id % self.gcfg.gyro_bias_every == 0):
+            # the gyro bias only: later gyro factors and predictions subtract it
+            g.calibrate(scale=False, rebase=self.gcfg.calibrate_rebase)
+            self.calibrations += 1
+        self.t["graph"] += time.perf_counter() - t2
+
+    def finish(self) -> SlamResult:
+        """Batch solve, then a pose for every scan through its keyframe."""
+        if not self.keyframes:
+            raise KosmapError(f"none of the {len(self.stamps)} scans had {self.ocfg.min_points} or more returns; "
+                              f"nothing to map (check the scan topic and [odometry] min_range/max_range)")
+        self._flush_gyro(final=True)
+        st = self.imu_stats
+        if st["gap"] or st["uncovered"]:
+            self.imu_warnings.append(f"{st['gap'] + st['uncovered']} of {len(self.keyframes) - 1} node intervals had gyro gaps "
+                                     f"(> {self.gcfg.gyro_max_gap_s:g} s without a sample) or lay outside the IMU stream: "
+                                     f"no gyro factor there")
+        if st["frontend_disagree"] > 0.01 * max(st["frontend_yaw"] + st["frontend_disagree"], 1):
+            self.imu_warnings.append(f"the gyro disagreed with the wheel odometry on {st['frontend_disagree']} scan steps "
+                                     f"(> {math.degrees(FE_GYRO_TOL):g}° or 25 %): the wheels' yaw was predicted there")
+        t0 = time.perf_counter()
+        self.graph.optimize()
+        self.t["optimize"] = time.perf_counter() - t0
+        self.loops.release()
+        key_local = np.array([k.local_pose for k in self.keyframes])
+        local = np.array(self.local, dtype=float).reshape(-1, 3)
+        kos = np.array(self.key_of_scan, dtype=np.int64)
+        poses = scan_poses(local, kos, key_local, self.graph.est)
+        stamps = np.array(self.stamps, dtype=np.int64)
+        return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
+                          np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
+                          points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
+                          duration_s=float(stamps[-1] - stamps[0]) * 1e-9 if len(stamps) else 0.0,
+                          loop_stats=dataclasses.asdict(self.loops.stats), imu_stats=dict(self.imu_stats),
+                          heading_stats=None if self.heading is None else dataclasses.asdict(self.heading.stats),
+                          warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]
+                                                              if self.heading is not None and self.heading.stats.disabled else []))
+
+
+_NAN3 = (math.nan, math.nan, math.nan)
+_NO_POINTS = np.zeros((0, 2))
+_NO_POINTS.flags.writeable = False
+FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw this far (or 25 %) from the wheels'
+STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
+MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
+
+
+def _cap_covariance(cov: np.ndarray) -> np.ndarray:
+    """`cov` with its eigenvalues clipped to MAX_MATCH_VAR (and to be positive): a narrow scan along a
+    corridor has a near-infinite variance along it, which, with no odometry factor beside it, makes the
+    graph indeterminate (gtsam IndeterminateSystemException on the simulated office without wheel odometry)."""
+    w, v = np.linalg.eigh(0.5 * (cov + cov.T))
+    w = np.clip(np.nan_to_num(w, nan=MAX_MATCH_VAR, posinf=MAX_MATCH_VAR), 1e-12, MAX_MATCH_VAR)
+    return (v * w) @ v.T
