@@ -75,7 +75,7 @@ def test_standing_still_adds_no_memory_per_scan(ring):
 
 def test_the_spill_keeps_no_per_point_state(tmp_path):
     """Plane clouds go to disk with one index entry each: 200 clouds of 4000 points hold ~nothing in memory."""
-    sp = Spill(tmp_path)
+    sp = Spill(tmp_path, ["obstacle"])
     rng = np.random.default_rng(0)
     pts = rng.normal(size=(4000, 3))
     cls = rng.integers(0, 3, 4000).astype(np.float32)
