@@ -273,3 +273,50 @@ def f_score(f: MapField, pts: np.ndarray, pose: np.ndarray) -> float:
     from kosmap.frontend.matcher import mean_score
 
     return float(mean_score(f.match, f.origin[0], f.origin[1], f.resolution, pts, np.asarray(pose, float))) if len(pts) else 0.0
+
+
+def load_map(path, scale: float | None = None):
+    """A map_server YAML (a build's map_*.yaml, any map_saver map) or a plain blueprint image with `scale` m/pixel."""
+    from pathlib import Path
+
+    from kosmap.mapping.mapio import read_blueprint, read_map_server
+
+    p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        if scale is not None:
+            raise LocalizeError(f"{p} is a map_server YAML with its own resolution; drop --map-scale")
+        return read_map_server(p)
+    return read_blueprint(p, scale)
+
+
+def parse_pose(text: str) -> np.ndarray:
+    """"x,y,yaw" (metres, metres, degrees) → (x, y, yaw in radians)."""
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3 or not all(math.isfinite(t) for t in v):
+        raise LocalizeError(f"--initial-pose {text!r} must be x,y,yaw: metres, metres and degrees, e.g. 1.2,1.4,0")
+    return np.array([v[0], v[1], math.radians(v[2])])
+
+
+def check_initial_pose(f: MapField, pose: np.ndarray) -> None:
+    if not f.is_free(pose[None, :2])[0]:
+        where = "in a wall" if f.is_occupied(pose[None, :2])[0] else "outside the map's free space"
+        raise LocalizeError(f"--initial-pose ({pose[0]:g}, {pose[1]:g}) lies {where}; give a pose in the map's frame "
+                            f"where the robot stood at the log's start")
+
+
+TRUTH_IN_MAP_MIN = 0.8  # share of the ground truth that must lie in the map's free space (or near its walls)
+
+
+def check_truth_frame(f: MapField, truth) -> None:
+    """The log's ground truth must lie in the map's free space: a map in another frame (a SLAM map starts at the
+    robot's first pose, the truth in the building's) would be scored against the wrong poses."""
+    _, pg = truth
+    xy = np.asarray(pg)[:, :2][:: max(1, len(pg) // 500)]
+    inside = f.is_free(xy) | f.is_occupied(xy)
+    if inside.mean() < TRUTH_IN_MAP_MIN:
+        raise LocalizeError(f"the log's ground truth lies outside the map's free space at {100 * (1 - inside.mean()):.0f} % "
+                            f"of its poses: the map is in another frame than the truth; give a map in the truth's "
+                            f"(building's) frame, or --no-truth to localize without scoring")
