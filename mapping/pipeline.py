@@ -50,7 +50,7 @@ from kosmap.mapping.framepool import FramePool, default_workers, executor_peak_r
 from kosmap.mapping.grid import GridBuilder, OccupancyGrid
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
-from kosmap.mapping.outdir import SPILL_PREFIX, check_out, claim, discard, record
+from kosmap.mapping.outdir import SPILL_PREFIX, check_out, claim, commit, discard, holds_complete_run
 from kosmap.mapping.slamproc import RemoteFeed, SlamProcessError
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
@@ -267,6 +267,12 @@ class Spill:
 
 # ---- results --------------------------------------------------------------------------------------------------------
 
+class BuildInterrupted(KosmapError):
+    """Ctrl-C stopped a build whose folder holds a complete earlier build: that one is kept, not the partial one."""
+
+    exit_code = 130
+
+
 @dataclass
 class BuildResult:
     """What `build` wrote and measured."""
@@ -298,6 +304,19 @@ def _stats(v) -> dict:
             "p90": float(np.percentile(a, 90))}
 
 
+
+
+def _renamed(doc, old: str, new: str):
+    """`doc` (metrics: dicts, lists, strings, paths) with each path under folder `old` under folder `new` instead."""
+    if isinstance(doc, dict):
+        return {k: _renamed(v, old, new) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_renamed(v, old, new) for v in doc]
+    if isinstance(doc, Path):
+        return Path(_renamed(str(doc), old, new))
+    if isinstance(doc, str) and (doc == old or doc.startswith(old + os.sep)):
+        return new + doc[len(old):]
+    return doc
 
 
 def _write_text(path: Path, text: str) -> Path:
@@ -374,8 +393,10 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     kos_gcfg = kos_graph_config(cfg)  # the same graph as `kosmap slam --source kos` (KOS_GRAPH, then [build] kos_graph)
 
     bp_files = () if blueprint is None else (Path(blueprint), *(Path(blueprint).with_suffix(x) for x in (".png", ".pgm")))
-    # the previous build's files go; a file of the user's, or one this run reads, under one of our names stops here
-    claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
+    # a file of the user's, or one this run reads, under one of our names stops here; the run writes into a staging
+    # folder whose files replace the previous build's only when it completes (mapping/outdir.py)
+    stage = claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
+    final_out, out = out, stage.dir
     spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
     warnings: list[str] = []
     pool = None
@@ -400,6 +421,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, bcfg.in_flight or None)
         p1 = _pass1(log, det, cfg, counts, duration, workers, progress, on_progress, spill_dir, warnings, pool,
                     feeds.get("kos"), feeds.get("laser"))
+        if p1["partial"] and holds_complete_run(final_out, "build"):
+            raise BuildInterrupted(f"interrupted after {p1['log_s']:.1f} s of log; the complete build already in "
+                                   f"{final_out} is kept (run again to replace it)")
         rss = {"after_read": peak_rss_mb()}
         say(("interrupted: mapping what was read, " if p1["partial"] else "")
             + f"{p1['frames']} depth frames, {p1['laser_kept']} laser scans read in {p1['seconds']:.1f} s")
@@ -454,6 +478,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                            workers=workers, warnings=warnings,
                            timing={"read_and_frames_s": p1["seconds"], "slam_finish_s": slam_finish_s,
                                    "maps_s": maps_s, "compare_s": compare_s})
+        metrics = _renamed(metrics, str(out), str(final_out))  # the files' paths as they will be once in place
         if blueprint_scale is not None:  # a plain-image blueprint: the report's trajectory figure reads it again
             metrics["sources"]["blueprint_scale"] = blueprint_scale
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,
@@ -471,10 +496,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             # total_s and the real-time factor stay what the report shows (and the console prints): up to the report
             metrics["timing"]["report_s"] = time.perf_counter() - t_rep
             files["metrics"] = _write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
-        files["manifest"] = record(out, BUILD_FILES)
-        return BuildResult(out, json_safe(metrics), files)
-    except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: no half-written result left looking valid
-        discard(out, BUILD_FILES)
+    except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: the previous build stays as it was
+        discard(stage)
         raise
     finally:
         for feed in feeds.values():
@@ -482,6 +505,13 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         if pool is not None:
             pool.close(cancel=True)
         shutil.rmtree(spill_dir, ignore_errors=True)
+    try:
+        files = {k: final_out / p.name for k, p in files.items()}
+        files["manifest"] = commit(stage, partial=bool(p1["partial"]))
+    except BaseException:
+        discard(stage)
+        raise
+    return BuildResult(final_out, json_safe(metrics), files)
 
 
 def _expected_units(det, counts: dict, duration: float, bcfg) -> int:

@@ -56,11 +56,11 @@ def register(app: typer.Typer) -> None:
         truth = not no_truth and inp.ground_truth is not None
         if truth:
             L.check_truth_frame(f, inp.ground_truth)
-        with writing(out, LOCALIZE_FILES, inputs=(log, map_, config), command="localize"):
+        with writing(out, LOCALIZE_FILES, inputs=(log, map_, config), command="localize") as stage:
             with seconds_bar("localize", "{task.fields[t]:.0f}/{task.total:.0f} s of log", quiet) as tick:
                 result = L.localize(inp, f, cfg.localize, pose0, progress=tick)
             m = metrics(result, inp, cfg, str(map_), truth)
-            save(out, result, inp, grid, cfg, m, truth)
+            save(stage, result, inp, grid, cfg, m, truth)  # moved into --out when complete
         if quiet:
             return
         run, loc = m["run"], m["localization"]
