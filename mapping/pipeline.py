@@ -26,8 +26,6 @@ import tempfile
 import threading
 import time
 from array import array
-from bisect import bisect_left
-from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +40,7 @@ from kosmap.frontend.errors import ConfigError, KosmapError, TopicError
 from kosmap.frontend.kos import FUSED, OBSTACLE, fuse_with_laser
 from kosmap.frontend.kosframe import KosFrame
 from kosmap.frontend.logs import detect_topics, open_log
-from kosmap.frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
+from kosmap.frontend.odometry import OdometryConfig, scan_points_base
 from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
 from kosmap.mapping.config import Config, config_dict, write_config
 from kosmap.mapping.childproc import die_with_parent
@@ -52,9 +50,8 @@ from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
 from kosmap.mapping.outdir import SPILL_PREFIX, check_out, claim, commit, discard, holds_complete_run
 from kosmap.mapping.slamproc import RemoteFeed, SlamProcessError
+from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
 
-ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
-ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
 STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
                  "planes", "points", "fspf_ms", "kos_ms")
 TABLE_5_2 = ("ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "planes", "fspf_ms", "kos_ms")
@@ -67,109 +64,7 @@ BUILD_FILES = OUTPUTS + ("config.toml",)  # and its effective config: mapping/ou
 
 # ---- SLAM feeding ---------------------------------------------------------------------------------------------------
 
-class SlamFeed:
-    """Scans into one `Slam`, each with the wheel odometry at its stamp.
-
-    A scan waits until an odometry sample at or after its stamp has been read, or until the log has moved
-    ODOM_WAIT_S past it; the pose it gets depends only on the samples within that window (never on how far
-    the reader ran ahead), so a scan that reaches the feed late (from the worker pool) gets the same prior as
-    one that came at once: serial and parallel runs feed SLAM identical inputs.
-    """
-
-    def __init__(self, slam, use_odom: bool, use_imu: bool = False) -> None:
-        self.slam = slam
-        self.use_odom = use_odom
-        self.use_imu = use_imu and slam.gcfg.imu  # the log's gyro: scans also wait for its samples
-        slam.expect_imu = self.use_imu
-        self.wheel = WheelOdometry()
-        self.pending: deque[tuple[int, np.ndarray]] = deque()
-        self.added = 0
-        self.no_odom = 0
-
-    def odom(self, rec: Odometry) -> None:
-        self.wheel_sample(rec.stamp_ns, rec.x, rec.y, rec.yaw)
-
-    def wheel_sample(self, stamp_ns: int, x: float, y: float, yaw: float) -> None:
-        """One wheel odometry pose (what `odom` takes of a record)."""
-        self.wheel.add(stamp_ns, x, y, yaw)
-
-    def wheel_samples(self, stamps_ns: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray) -> None:
-        """Wheel odometry poses in their order (an OdometrySamples' columns)."""
-        for t, a, b, c in zip(stamps_ns.tolist(), x.tolist(), y.tolist(), yaw.tolist()):
-            self.wheel.add(t, a, b, c)
-
-    def imu(self, rec) -> None:
-        """One Imu record: straight to SLAM (its gyro factors wait for the samples by themselves)."""
-        if self.use_imu:
-            self.slam.add_imu(rec)
-
-    def gyro(self, stamp_ns: int, yaw_rate: float) -> None:
-        """One gyro sample of an Imu record that has angular velocity (what Slam.add_imu takes of it)."""
-        if self.use_imu:
-            self.slam.add_imu(stamp_ns, yaw_rate)
-
-    def gyro_samples(self, stamps_ns: np.ndarray, yaw_rates: np.ndarray) -> None:
-        """Gyro samples in their order (of an ImuSamples, those with angular velocity)."""
-        if self.use_imu:
-            self.slam.add_imu_many(stamps_ns, yaw_rates)
-
-    def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
-        """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
-        beam by beam (time_increment > 0): its points are made once the odometry around its stamp is in,
-        de-skewed with the odometry's twist (frontend/deskew.py) when there is one."""
-        self.pending.append((int(stamp_ns), points, deskew))
-
-    def advance(self, now_ns: int | None) -> None:
-        """Hand SLAM every pending scan whose odometry is settled (`now_ns` None: the log has ended)."""
-        wait = int(ODOM_WAIT_S * 1e9)
-        while self.pending:
-            stamp, pts, deskew = self.pending[0]
-            settled = ((not self.use_odom or self.wheel.covers(stamp))
-                       and (not self.use_imu or self.slam.gyro.covers(stamp)))
-            if now_ns is not None and not settled and now_ns - stamp <= wait:
-                return
-            self.pending.popleft()
-            odom = self._odom_at(stamp) if self.use_odom else None
-            if self.use_odom and odom is None:
-                self.no_odom += 1
-            if deskew is not None:
-                scan, mount, lo, hi = deskew
-                twist = self.wheel.twist_at(stamp, mount) if self.use_odom else None
-                pts = (scan_to_points(scan, mount, lo, hi, twist) if twist is not None
-                       else scan_points_base(scan.ranges, scan.angles, scan.valid(), mount, lo, hi))
-            self.slam.add_scan(stamp, pts, odom)
-            self.added += 1
-            self.wheel.drop_before(stamp - int(2e9))
-
-    def end(self) -> None:
-        """The log has ended (or the read was interrupted): every pending scan goes to SLAM."""
-        self.advance(None)
-
-    def result(self):
-        """SLAM's solved run (mapping/slam.py SlamResult), None when no scan reached it; KosmapError when it failed."""
-        return self.slam.finish() if self.slam.stamps else None
-
-    def close(self) -> None:
-        """Nothing to release in this process (mapping/slamproc.py's feed stops its process)."""
-
-    def _odom_at(self, stamp: int) -> np.ndarray | None:
-        """Interpolated between the samples around `stamp` (the later within ODOM_WAIT_S); else held at the
-        nearer sample within ODOM_STALE_S; else None."""
-        t, p = self.wheel.t, self.wheel.p
-        wait, stale = int(ODOM_WAIT_S * 1e9), int(ODOM_STALE_S * 1e9)
-        i = bisect_left(t, stamp)
-        after = i < len(t) and t[i] - stamp <= wait
-        if after and i > 0:
-            a = (stamp - t[i - 1]) / (t[i] - t[i - 1]) if t[i] > t[i - 1] else 1.0
-            q = (1.0 - a) * np.array(p[i - 1]) + a * np.array(p[i])
-        elif after and t[i] - stamp <= stale:
-            q = np.array(p[i])
-        elif i > 0 and stamp - t[i - 1] <= stale:
-            q = np.array(p[i - 1])
-        else:
-            return None
-        q[2] = float(se2.wrap(q[2]))
-        return q
+# SlamFeed (mapping/slamfeed.py) hands each SLAM its scans, as it does for `kosmap slam`.
 
 
 # ---- the spill: per-step scans on disk between the passes -----------------------------------------------------------
@@ -326,19 +221,6 @@ def _write_text(path: Path, text: str) -> Path:
     return path
 
 
-def _odometry_columns(rec: Odometry | OdometrySamples) -> tuple[np.ndarray, ...]:
-    """(stamps ns, x, y, yaw) of an OdometrySamples, or of one Odometry record as columns of one."""
-    if isinstance(rec, OdometrySamples):
-        return rec.stamps_ns, rec.x, rec.y, rec.yaw
-    return np.array([rec.stamp_ns], np.int64), np.array([rec.x]), np.array([rec.y]), np.array([rec.yaw])
-
-
-def _planar(tf: Transform | None) -> np.ndarray:
-    if tf is None:
-        return np.zeros(3)
-    return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float)
-
-
 # ---- the build --------------------------------------------------------------------------------------------------------
 
 def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, blueprint: str | Path | None = None,
@@ -437,10 +319,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             except KosmapError as e:
                 warnings.append(f"{name} SLAM produced no trajectory: {e}")
                 continue
-            finally:
-                if feed.no_odom:
-                    warnings.append(f"{feed.no_odom} {'KOS' if name == 'kos' else name} scan(s) had no wheel odometry "
-                                    f"within {ODOM_STALE_S} s: matched without it")
+            w = no_odom_warning(feed.no_odom, res.stretches if res is not None else {}, "KOS" if name == "kos" else name)
+            warnings.extend([w] if w else [])
             if res is None:
                 continue
             results[name] = res
@@ -542,9 +422,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     state = {"frames": 0, "laser_kept": 0, "laser_seen": 0, "t0": None, "t": None, "end": None, "laser_mount": None,
              "last_laser": None, "last_fused": None, "laser_tf": None, "next_cloud": None, "base": "base_link",
              "stop": False, "partial": False}
-    laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
-    if det.scan and duration > 0 and counts.get(det.scan, 0) / duration <= 1.2 * bcfg.laser_rate:
-        laser_period = 0  # a laser no faster than the limit keeps every scan (bursty stamps would lose some)
+    laser_period_ns = laser_period(bcfg.laser_rate, counts.get(det.scan, 0), duration) if det.scan else 0
     cloud_period = int(bcfg.mcap_planes_period * 1e9)
     run = ScanRun()
     total = _expected_units(det, counts, duration, bcfg)
@@ -601,7 +479,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
         laser = step.laser  # fused here, at the laser map's rate, not for every step (KosStream fuse=False)
         if laser is not None and bcfg.fused_map and laser_feed is not None:
             last = state["last_fused"]
-            if last is None or laser.stamp_ns - last >= laser_period - 1_000_000:
+            if last is None or laser.stamp_ns - last >= laser_period_ns - 1_000_000:
                 if state["laser_tf"] is None:  # its matrix, made once
                     state["laser_tf"] = (lookup_static(statics, "base_link", laser.frame_id)
                                          or Transform.identity("base_link", laser.frame_id)).matrix()
@@ -616,15 +494,11 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
     def on_laser(scan: Scan) -> None:
         state["laser_seen"] += 1
         last = state["last_laser"]
-        if last is not None and scan.stamp_ns - last < laser_period - 1_000_000:
+        if last is not None and scan.stamp_ns - last < laser_period_ns - 1_000_000:
             return
-        if state["laser_mount"] is None:
-            state["laser_mount"] = _planar(lookup_static(statics, state["base"], scan.frame_id) or
-                                           lookup_static(statics, "base_link", scan.frame_id))
-            if not statics or lookup_static(statics, state["base"], scan.frame_id) is None:
-                if scan.frame_id.lstrip("/") not in (state["base"], "base_link", ""):
-                    warnings.append(f"no static transform from {state['base']} to {scan.frame_id}; "
-                                    f"the laser is taken as mounted at {state['base']}")
+        if state["laser_mount"] is None:  # the same lookup as `kosmap slam` (mapping/slamfeed.py)
+            state["laser_mount"], w = laser_mount(statics, state["base"], scan.frame_id)
+            warnings.extend([w] if w else [])
         if not spill.laser.add(scan.stamp_ns, scan.ranges):
             return
         if not spill.laser.meta:
@@ -633,12 +507,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                                 "topic": scan.topic, "time_increment": scan.time_increment}
         state["last_laser"] = scan.stamp_ns
         state["laser_kept"] += 1
-        o = laser_feed.slam.ocfg
-        if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
-            laser_feed.push(scan.stamp_ns, None, (scan, state["laser_mount"], o.min_range, o.max_range))
-        else:
-            laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), state["laser_mount"],
-                                                            o.min_range, o.max_range))
+        laser_feed.push_laser(scan, state["laser_mount"])
         if not det.depth:
             tick()
 
@@ -685,7 +554,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                 if batch and (state["end"] is None or rec.end_ns > state["end"]):
                     state["end"] = rec.end_ns
                 if isinstance(rec, (Odometry, OdometrySamples)):
-                    t, x, y, yaw = _odometry_columns(rec)
+                    t, x, y, yaw = odometry_columns(rec)
                     if rec.topic == det.ground_truth:
                         gt.extend(np.column_stack((t * 1e-9, x, y, yaw)).ravel().tolist())
                         continue

@@ -25,12 +25,13 @@ from kosmap.backend.loops import LoopCloser, LoopConstraint
 from kosmap.backend.manhattan import ManhattanHeading
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError, TopicError
-from kosmap.frontend.odometry import NARROW_SCAN, OdometryConfig, WheelOdometry, make_odometry, scan_to_points
-from kosmap.frontend.records import Odometry, Scan, Transforms
+from kosmap.frontend.odometry import NARROW_SCAN, OdometryConfig, make_odometry
+from kosmap.frontend.records import ImuSamples, Odometry, OdometrySamples, Scan, Transforms
 from kosmap.mapping.jsonsafe import json_safe
+from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
+from kosmap.mapping.slamhealth import HealthTracker
+from kosmap.mapping.slamhealth import warnings as stretch_warnings
 
-ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the odometry sample after it
-ODOM_STALE_S = 0.5  # scans farther than this outside the odometry's span get no odometry prior
 
 
 @dataclass
@@ -57,6 +58,7 @@ class SlamResult:
     loop_stats: dict = field(default_factory=dict)
     imu_stats: dict = field(default_factory=dict)  # gyro factors made and intervals skipped (gap, stuck, uncovered)
     heading_stats: dict | None = None  # Manhattan heading priors (backend/manhattan.py), when on
+    stretches: dict = field(default_factory=dict)  # where the run had little to go by (mapping/slamhealth.py)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -109,6 +111,7 @@ class Slam:
         self.imu_warnings: list[str] = []
         self._prev_scan: tuple[int, np.ndarray] | None = None  # (stamp, raw wheel odometry) of the last scan
         self._fused: np.ndarray | None = None  # wheel translation + gyro yaw, the front end's prediction
+        self.health = HealthTracker()  # stretches without scans, odometry or a determined match (the feed sets expect_odom)
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
@@ -198,6 +201,11 @@ class Slam:
         t0 = time.perf_counter()
         if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3], int(stamp_ns)):
             self._flush_gyro(final=False, now_ns=int(stamp_ns))
+        if odom_pose is None and hasattr(self.frontend, "prev_odom"):
+            # the next odometry sample after a gap must not be differenced with the last one before it: the front end
+            # has moved by matching since, and would count the motion across the gap twice (10 s without odometry on
+            # the synthetic ring: ATE 8.7 m)
+            self.frontend.prev_odom = None
         res = self.frontend.update(stamp_ns, points, self._predict_with_gyro(stamp_ns, odom_pose))
         t1 = time.perf_counter()
         self.t["frontend"] += t1 - t0
@@ -206,12 +214,14 @@ class Slam:
         self.local.extend(map(float, res.pose))
         self.odom.extend(_NAN3 if odom_pose is None else map(float, odom_pose))
         self.matched.append(bool(res.matched))
+        self.health.scan(stamp_ns, len(points) >= self.ocfg.min_points, odom_pose is not None)
         if self.points is not None:
             self.points.append(np.asarray(points, dtype=np.float32))
         if self.select(res.pose, len(points)):
             cov = res.covariance(self.gcfg.match_n_eff) if self.gcfg.match_noise == "hessian" else None
             kf = Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
                           None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov)
+            self.health.keyframe(stamp_ns, res.pose, kf.points)
             self._add_keyframe(kf)
             # the loop closer has taken its thinned float32 copy (backend/loops.py); the full scan is not kept for the
             # whole run (5–17 KB a keyframe as float64: ~10 MB per 5 minutes of the office on both SLAMs)
@@ -299,6 +309,9 @@ class Slam:
         kos = np.array(self.key_of_scan, dtype=np.int64)
         poses = scan_poses(local, kos, key_local, self.graph.est)
         stamps = np.array(self.stamps, dtype=np.int64)
+        st = self.health.finish(np.array([k.stamp_ns for k in self.keyframes], dtype=np.int64), self.graph.weak_nodes,
+                                self.graph.solver_notes)
+        health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
@@ -306,7 +319,8 @@ class Slam:
                           loop_stats=dataclasses.asdict(self.loops.stats), imu_stats=dict(self.imu_stats),
                           heading_stats=None if self.heading is None else dataclasses.asdict(self.heading.stats),
                           warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]
-                                                              if self.heading is not None and self.heading.stats.disabled else []))
+                                                              if self.heading is not None and self.heading.stats.disabled else [])
+                          + health, stretches=st.as_dict(int(stamps[0])))
 
 
 _NAN3 = (math.nan, math.nan, math.nan)
@@ -370,93 +384,70 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         if not det.scan:
             raise TopicError(f"{Path(path).name} has no sensor_msgs/LaserScan topic; --source laser needs one (see `kosmap info`)")
         use_odom = bool(det.odom) and ocfg.use_wheel_odometry
-        topics = [det.scan] + ([det.odom] if use_odom else []) + ([det.tf_static] if det.tf_static else [])
+        feed = SlamFeed(slam, use_odom, bool(det.imu))  # the build's feed (mapping/slamfeed.py): the same inputs
+        topics = [det.scan] + ([det.odom] if det.odom else []) + ([det.tf_static] if det.tf_static else [])
         topics += [det.ground_truth] if det.ground_truth else []  # read for scoring only, never used by SLAM
-        use_imu = bool(det.imu) and cfg.graph.imu
-        topics += [det.imu] if use_imu else []
-        slam.expect_imu = use_imu
-        gt_t: list[float] = []
-        gt_p: list[tuple[float, float, float]] = []
-        wheel = WheelOdometry()
-        pending: deque[Scan] = deque()
-        statics: dict[str, tuple[str, np.ndarray]] = {}
-        mounts: dict[str, np.ndarray] = {}
-        base = "base_link"
-        t_first = None
+        topics += [det.imu] if feed.use_imu else []
+        period = laser_period(cfg.build.laser_rate, info.count(det.scan), float(info.duration))
+        gt: list[np.ndarray] = []
+        statics: list[Transforms] = []
+        st = {"base": "base_link", "mount": None, "last": None, "first": None, "now": None}
         total = info.duration
-        state = {"empty": 0, "no_odom": 0}
-
-        def settled(stamp: int, now: int | None) -> bool:
-            """A scan goes to SLAM once the odometry (and the gyro) reach past it, or the log is ODOM_WAIT_S on."""
-            if now is not None and (now - stamp) * 1e-9 > ODOM_WAIT_S:
-                return True
-            return (not use_odom or wheel.covers(stamp)) and (not use_imu or slam.gyro.covers(stamp))
-
-        def process(scan: Scan) -> None:
-            frame = scan.frame_id.lstrip("/") or base
-            if frame not in mounts:
-                m = _mount(statics, base, frame)
-                if m is None:
-                    m = np.zeros(3)
-                    if frame != base:
-                        warnings.append(f"no static transform from {base} to {frame}; the scan is taken as mounted at {base}")
-                mounts[frame] = m
-            twist = wheel.twist_at(scan.stamp_ns, mounts[frame]) if use_odom and ocfg.deskew and scan.time_increment > 0 else None
-            pts = scan_to_points(scan, mounts[frame], ocfg.min_range, ocfg.max_range, twist)  # de-skewed when taken beam by beam
-            if len(pts) < ocfg.min_points:
-                state["empty"] += 1
-            odom = None
-            if use_odom and len(wheel) and wheel.t[0] - ODOM_STALE_S * 1e9 <= scan.stamp_ns <= wheel.t[-1] + ODOM_STALE_S * 1e9:
-                odom = wheel.pose_at(scan.stamp_ns)
-            elif use_odom:
-                state["no_odom"] += 1
-            slam.add_scan(scan.stamp_ns, pts, odom)
-            if kept is not None:
-                kept.append(scan)
-            wheel.drop_before(scan.stamp_ns - int(2e9))
-
-        for rec in log.read(topics):
-            if isinstance(rec, Odometry) and rec.topic == det.ground_truth:
-                gt_t.append(rec.stamp)
-                gt_p.append((rec.x, rec.y, rec.yaw))
-            elif isinstance(rec, Odometry):
-                base = rec.child_frame_id.lstrip("/") or base
-                wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
-                while pending and settled(pending[0].stamp_ns, None):
-                    process(pending.popleft())
-            elif use_imu and rec.topic == det.imu:
-                slam.add_imu(rec)
-                while pending and settled(pending[0].stamp_ns, None):
-                    process(pending.popleft())
+        for rec in log.read_batched(topics):
+            if rec.stamp_ns and (st["now"] is None or rec.stamp_ns > st["now"]):
+                st["now"] = rec.stamp_ns
+            if isinstance(rec, (Odometry, OdometrySamples)):
+                cols = odometry_columns(rec)
+                if rec.topic == det.ground_truth:
+                    gt.append(np.column_stack(cols))
+                    continue
+                if rec.topic == det.odom:
+                    if st["base"] == "base_link" and rec.child_frame_id:
+                        st["base"] = rec.child_frame_id.lstrip("/") or "base_link"
+                    feed.wheel_samples(*cols)
+            elif isinstance(rec, ImuSamples):
+                ok = rec.has_angular_velocity
+                feed.gyro_samples(rec.stamps_ns[ok], rec.yaw_rate[ok])
             elif isinstance(rec, Transforms):
-                for tf in rec.transforms:
-                    statics[tf.child] = (tf.parent, np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]]))
+                if rec.static:
+                    statics.append(rec)
+            elif rec.topic == det.imu:
+                feed.imu(rec)
             elif isinstance(rec, Scan):
-                if t_first is None:
-                    t_first = rec.stamp_ns
-                if max_seconds is not None and (rec.stamp_ns - t_first) * 1e-9 > max_seconds:
+                if st["first"] is None:
+                    st["first"] = rec.stamp_ns
+                if max_seconds is not None and (rec.stamp_ns - st["first"]) * 1e-9 > max_seconds:
                     break
-                pending.append(rec)
-                while pending and settled(pending[0].stamp_ns, rec.stamp_ns):
-                    process(pending.popleft())
+                if st["last"] is None or rec.stamp_ns - st["last"] >= period - 1_000_000:
+                    if st["mount"] is None:
+                        st["mount"], w = laser_mount(statics, st["base"], rec.frame_id)
+                        warnings.extend([w] if w else [])
+                    feed.push_laser(rec, st["mount"])
+                    st["last"] = rec.stamp_ns
+                    if kept is not None:
+                        kept.append(rec)
                 if progress is not None:
-                    progress((rec.stamp_ns - t_first) * 1e-9, total)
-        while pending:
-            process(pending.popleft())
+                    progress((rec.stamp_ns - st["first"]) * 1e-9, total)
+            feed.advance(st["now"])
+        feed.end()
         warnings.extend(log.warnings)
-    result = slam.finish()
+    result = feed.result()
+    if result is None:
+        raise KosmapError(f"{Path(path).name}: no laser scan reached SLAM; nothing to map")
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
-    result.mount = next(iter(mounts.values())) if mounts else np.zeros(3)
+    result.mount = st["mount"] if st["mount"] is not None else np.zeros(3)
     result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
-    if state["empty"]:
-        warnings.append(f"{state['empty']} scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
-    if state["no_odom"]:
-        warnings.append(f"{state['no_odom']} scan(s) lay outside the wheel odometry's time span: matched without it")
+    empty = result.stretches.get("unusable_scans", 0)
+    if empty:
+        warnings.append(f"{empty} scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
+    w = no_odom_warning(feed.no_odom, result.stretches, "laser")
+    warnings.extend([w] if w else [])
     result.warnings = warnings + result.warnings
     result.scans = kept
-    if gt_t:
-        result.ground_truth = (np.array(gt_t), np.array(gt_p))
+    if gt:
+        g = np.concatenate(gt)
+        result.ground_truth = (g[:, 0] * 1e-9, g[:, 1:4])
     return result
 
 
@@ -522,7 +513,6 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     from kosmap.frontend.odometry import scan_points_base
     from kosmap.mapping.framepool import FramePool
     from kosmap.mapping.kosscan import KosStream, ScanRun
-    from kosmap.mapping.pipeline import SlamFeed
 
     t_start = time.perf_counter()
     bands = [b[0] for b in cfg.kos.bands()]
@@ -602,8 +592,8 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
     if state["empty"]:
         warnings.append(f"{state['empty']} KOS scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
-    if feed.no_odom:
-        warnings.append(f"{feed.no_odom} KOS scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it")
+    w = no_odom_warning(feed.no_odom, result.stretches, "KOS")
+    warnings.extend([w] if w else [])
     result.warnings = warnings + result.warnings
     result.scans = kept
     if gt_t:
@@ -678,7 +668,8 @@ def summary(result: SlamResult) -> dict:
     kinds = {e.kind for e in edges}
     return {"scans": int(len(result.stamps_ns)), "matched_scans": int(result.matched.sum()),
             "keyframes": len(result.keyframes), "loops": len(result.loops),
-            "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "gyro", "loop", "heading")},
+            "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "gyro", "loop", "heading", "motion")},
+            "stretches": result.stretches,
             "heading": result.heading_stats,
             "recoveries": int(result.recoveries), "duration_s": result.duration_s,
             "seconds": dict(result.timings), "realtime_factor": result.realtime_factor,
