@@ -208,7 +208,7 @@ def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = Non
               on_frame: Callable[[KosFrame], None] | None = None, workers: int = 0) -> Iterator[KosStep]:
     """Stream the log once: FSPF+ → KOS per depth frame (in `workers` processes; 0 = here), cameras merged per
     step, fused with the nearest laser scan."""
-    log = open_log(log_path)
+    log = open_log(log_path, cfg.topics.on_damage)
     try:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
@@ -265,7 +265,7 @@ def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit:
     from kosmap.mapping.outdir import check_out, writing
 
     out = check_out(out)
-    with open_log(log_path) as log:  # refuse a log without depth before writing anything
+    with open_log(log_path, cfg.topics.on_damage) as log:  # refuse a log without depth before writing anything
         if not detect_topics(log.info().types(), cfg.topics).depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
     with writing(out, SCAN_FILES, inputs=(log_path,), command="scan") as stage:  # replace the last scan's when done

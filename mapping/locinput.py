@@ -118,7 +118,7 @@ def read_input(path: str | Path, cfg, source: str, progress: Callable[[float, fl
     motion = _Motion()
     gt_t: list[float] = []
     gt_p: list[tuple[float, float, float]] = []
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         name = Path(path).name

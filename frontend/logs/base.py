@@ -60,6 +60,7 @@ class LogReader(ABC):
         self._bad_imu: dict[str, int] = {}  # per topic: IMU samples skipped for non-finite values
         self._bad_msgs: dict[str, int] = {}  # per topic: messages skipped because their bytes do not decode
         self._guard = RecordGuard(self.path.name, self._warn)  # read-time checks of every record (validate.py)
+        self.on_damage = "skip"  # a damaged chunk: "skip" it, "read" it as it is (a CRC mismatch), or "fail"
 
     @abstractmethod
     def info(self) -> LogInfo:
