@@ -254,7 +254,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         from kosmap.mapping.mapio import read_blueprint
 
         bp_grid = read_blueprint(blueprint, blueprint_scale, cfg.compare.blueprint_dark)  # fails before any work
-    with open_log(log) as lg:
+    with open_log(log, cfg.topics.on_damage) as lg:
         info = lg.info()
         det = detect_topics(info.types(), cfg.topics)
         counts = {t: info.count(t) for t in info.types()}
@@ -526,7 +526,7 @@ def _pass1(log: Path, det, cfg: Config, counts: dict, duration: float, workers: 
                            fuse=False)
     t_begin = time.perf_counter()
     cpu0 = time.process_time()
-    lg = open_log(log)
+    lg = open_log(log, cfg.topics.on_damage)
     try:
         if progress:
             from rich.progress import BarColumn, MofNCompleteColumn, TextColumn, TimeElapsedColumn, TimeRemainingColumn

@@ -378,7 +378,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
     slam = Slam(ocfg, cfg.graph)
     kept: list[Scan] | None = [] if keep_scans else None
     warnings: list[str] = []
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.scan:
@@ -529,7 +529,7 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     gt_t: list[float] = []
     gt_p: list[tuple[float, float, float]] = []
     state = {"t0": None, "empty": 0, "stop": False}
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.depth:
