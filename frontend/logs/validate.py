@@ -70,7 +70,7 @@ class RecordGuard:
         if isinstance(rec, CameraModel):
             why = camera_problem(rec)
             if why:
-                return self._skip(rec, why, stamp, "check the camera calibration, or give one with --camera")
+                return self._skip(rec, why, stamp, "check the driver's calibration; the field-of-view model ([depth] fov_h_deg, fov_v_deg) serves the images")
             self._camera_size[rec.frame_id] = (rec.width, rec.height)
             return rec
         if isinstance(rec, DepthFrame):
@@ -92,8 +92,7 @@ class RecordGuard:
         if abs(img.shape[1] * ch - img.shape[0] * cw) > 0.01 * cw * ch:  # (camera_for scales a same-aspect info)
             self._count(f"the depth images on {rec.topic} are {img.shape[1]}×{img.shape[0]} pixels, the camera info of "
                         f"{rec.frame_id} says {cw}×{ch}, another aspect: its intrinsics do not fit these images and "
-                        f"the field-of-view model ([depth] fov_h_deg, fov_v_deg) is used; give the right calibration "
-                        f"with --camera", rec.topic, "aspect")
+                        f"the field-of-view model ([depth] fov_h_deg, fov_v_deg) is used: check the driver's calibration", rec.topic, "aspect")
         return rec
 
     def _odometry(self, rec: Odometry):
