@@ -126,6 +126,7 @@ class _Filter:
         self.rec = mcl.Recovery(cfg.alpha_slow, cfg.alpha_fast)
         self.updates = 0
         self.found = False
+        self.tight = 0  # filter updates in a row with a tight set
         self.lost_since = -1
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
@@ -211,7 +212,10 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        converged = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        tight = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        if update:
+            flt.tight = flt.tight + 1 if tight else 0
+        converged = tight and (flt.found or flt.tight >= cfg.converged_updates)
         if converged:
             flt.found = True
             flt.lost_since = -1
@@ -286,6 +290,9 @@ def load_map(path, scale: float | None = None):
         if scale is not None:
             raise LocalizeError(f"{p} is a map_server YAML with its own resolution; drop --map-scale")
         return read_map_server(p)
+    if scale is None and p.is_file():
+        raise LocalizeError(f"--map {p} is a plain image: give its scale in metres per pixel with --map-scale, or a "
+                            f"map_server .yaml that names it with its resolution")
     return read_blueprint(p, scale)
 
 

@@ -51,6 +51,7 @@ class LocalizeConfig(StageConfig):
     # convergence
     converged_xy: float = param(0.25, lo=0.0, lo_open=True, doc="the particles' position spread below which the pose counts as found", unit="m")
     converged_yaw_deg: float = param(10.0, lo=0.0, lo_open=True, doc="… and their heading spread", unit="deg")
+    converged_updates: int = param(10, lo=1, doc="… for this many filter updates in a row (~2 m of travel at update_min_d) before a pose is first claimed: one tight update can be a lucky wrong corner")
     # tracking refined by the scan-to-map matcher (frontend/matcher.py gauss_newton against the map's field)
     refine: bool = param(True, doc="refine each pose by Gauss–Newton against the map, starting from the last refined pose moved by the odometry")
     match_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="the matcher's field blur (one cell of a 5 cm map)", unit="m")
