@@ -27,6 +27,8 @@ from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError, TopicError
 from kosmap.frontend.odometry import NARROW_SCAN, OdometryConfig, make_odometry
 from kosmap.frontend.records import ImuSamples, Odometry, OdometrySamples, Scan, Transforms
+from kosmap.mapping.consistency import consistency, keep_points
+from kosmap.mapping.consistency import warning as consistency_warning
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
 from kosmap.mapping.slamhealth import HealthTracker
@@ -59,6 +61,7 @@ class SlamResult:
     imu_stats: dict = field(default_factory=dict)  # gyro factors made and intervals skipped (gap, stuck, uncovered)
     heading_stats: dict | None = None  # Manhattan heading priors (backend/manhattan.py), when on
     stretches: dict = field(default_factory=dict)  # where the run had little to go by (mapping/slamhealth.py)
+    consistency: dict = field(default_factory=dict)  # does the map agree with itself (mapping/consistency.py)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -111,6 +114,7 @@ class Slam:
         self.imu_warnings: list[str] = []
         self._prev_scan: tuple[int, np.ndarray] | None = None  # (stamp, raw wheel odometry) of the last scan
         self._fused: np.ndarray | None = None  # wheel translation + gyro yaw, the front end's prediction
+        self.key_points: list[np.ndarray] = []  # per keyframe, a few of its points for the consistency check
         self.health = HealthTracker()  # stretches without scans, odometry or a determined match (the feed sets expect_odom)
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
@@ -222,6 +226,7 @@ class Slam:
             kf = Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
                           None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov)
             self.health.keyframe(stamp_ns, res.pose, kf.points)
+            self.key_points.append(keep_points(kf.points))
             self._add_keyframe(kf)
             # the loop closer has taken its thinned float32 copy (backend/loops.py); the full scan is not kept for the
             # whole run (5–17 KB a keyframe as float64: ~10 MB per 5 minutes of the office on both SLAMs)
@@ -312,6 +317,10 @@ class Slam:
         st = self.health.finish(np.array([k.stamp_ns for k in self.keyframes], dtype=np.int64), self.graph.weak_nodes,
                                 self.graph.solver_notes)
         health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
+        con = consistency((np.array([k.stamp_ns for k in self.keyframes]) - stamps[0]) * 1e-9, self.graph.est,
+                          self.key_points, [r[1] for r in self.graph.loop_residuals()], self.gcfg.loop_sigma_xy)
+        bent = consistency_warning(con)
+        health += [bent] if bent else []
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
@@ -320,7 +329,7 @@ class Slam:
                           heading_stats=None if self.heading is None else dataclasses.asdict(self.heading.stats),
                           warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]
                                                               if self.heading is not None and self.heading.stats.disabled else [])
-                          + health, stretches=st.as_dict(int(stamps[0])))
+                          + health, stretches=st.as_dict(int(stamps[0])), consistency=con.as_dict())
 
 
 _NAN3 = (math.nan, math.nan, math.nan)
@@ -433,7 +442,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         warnings.extend(log.warnings)
     result = feed.result()
     if result is None:
-        raise KosmapError(f"{Path(path).name}: no laser scan reached SLAM; nothing to map")
+        raise KosmapError(nothing_reached_slam(path, "laser scan", warnings))
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
     result.mount = st["mount"] if st["mount"] is not None else np.zeros(3)
@@ -504,6 +513,13 @@ KOS_GRAPH = {"odom_sigma_xy": 0.005, "odom_sigma_xy_per_m": 0.02, "calibrate_eve
 def kos_graph_config(cfg) -> GraphConfig:
     """The graph for a narrow KOS scan: [graph] with KOS_GRAPH, then [build] kos_graph applied."""
     return _with_overrides(cfg.graph, KOS_GRAPH, cfg.build.kos_graph, "kos_graph")
+
+
+def nothing_reached_slam(path, what: str, warnings: list[str]) -> str:
+    """The error of a run where no scan reached SLAM, with the first thing the reading skipped (the reason, when
+    the log's scans or frames could not be used) rather than a count of zero scans."""
+    why = f": {warnings[0].removeprefix(Path(path).name + ': ')}" if warnings else " (every scan was empty?)"
+    return f"{Path(path).name}: no {what} reached SLAM{why}; nothing to map"
 
 
 def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | None, workers: int) -> SlamResult:
@@ -585,6 +601,8 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
         feed.advance(None)
         warnings.extend(run.warnings)
         warnings.extend(log.warnings)
+    if not slam.stamps:
+        raise KosmapError(nothing_reached_slam(path, "KOS scan", warnings))
     result = slam.finish()
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
@@ -669,7 +687,7 @@ def summary(result: SlamResult) -> dict:
     return {"scans": int(len(result.stamps_ns)), "matched_scans": int(result.matched.sum()),
             "keyframes": len(result.keyframes), "loops": len(result.loops),
             "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "gyro", "loop", "heading", "motion")},
-            "stretches": result.stretches,
+            "stretches": result.stretches, "consistency": result.consistency,
             "heading": result.heading_stats,
             "recoveries": int(result.recoveries), "duration_s": result.duration_s,
             "seconds": dict(result.timings), "realtime_factor": result.realtime_factor,

@@ -73,6 +73,9 @@ def register(app: typer.Typer) -> None:
             cal.append(f"building axes {hd['axis_deg']:+.2f}° (heading priors on {hd['priors']} of {run['keyframes']} keyframes)")
         if cal:
             print("estimated: " + ", ".join(cal))
+        from kosmap.mapping.report import consistency_text
+
+        print(f"self-consistency: {consistency_text(result.consistency)}")
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)
         names = [n for k, p in paths.items()  # map.yaml's image, map.pgm, is written beside it
