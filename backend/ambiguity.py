@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from kosmap.frontend.matcher import branch_and_bound, branch_and_bound_excluding
+from kosmap.frontend.matcher import branch_and_bound, branch_and_bound_excluding, translation_information  # noqa: F401 (re-export)
 
 
 def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_window: float, min_score: float,
@@ -52,14 +52,3 @@ def search_two_peaks(grids, points: np.ndarray, center, lin_window: float, ang_w
     r2, _, _, second = branch_and_bound_excluding(grids.pyramid, cells, w, w, float(max(min_score, floor)),
                                                   r, dx, dy, rad, len(angles))
     return pose, float(best), float(second) if r2 >= 0 else 0.0
-
-
-def translation_information(h: np.ndarray) -> tuple[float, float, np.ndarray]:
-    """Eigenvalues (smallest, largest) of the translational information with yaw marginalised out (the Schur
-    complement H_tt − H_tθ H_θθ⁻¹ H_θt of a match's 3×3 Gauss–Newton information), and the weakest direction."""
-    h = np.asarray(h, dtype=float)
-    htt = h[:2, :2]
-    if h[2, 2] > 1e-12:
-        htt = htt - np.outer(h[:2, 2], h[2, :2]) / h[2, 2]
-    w, v = np.linalg.eigh(0.5 * (htt + htt.T))
-    return float(max(w[0], 0.0)), float(max(w[1], 0.0)), v[:, 0]

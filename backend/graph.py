@@ -51,6 +51,9 @@ class GraphConfig(StageConfig):
     loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it")
     loop_search_every: int = param(2, lo=1, doc="search for loops at every n-th node")
     loop_linear_window: float = param(1.0, lo=0.0, doc="branch-and-bound half window in x and y", unit="m")
+    loop_max_linear_window: float = param(3.0, lo=0.0, doc="the window grows with the drift since the last loop up to this (backend/loops.py DriftModel)", unit="m")
+    loop_drift_per_m: float = param(0.01, lo=0.0, doc="drift of the estimate per metre travelled between loops, before accepted loops measure it", unit="m/m")
+    degenerate_ratio: float = param(0.25, lo=0.0, hi=1.0, doc="a wide scan's loop match whose weakest translational information is below this × its strongest must beat its best distinct rival by loop_peak_ratio (a corridor slid along)")
     loop_angular_window_deg: float = param(20.0, lo=0.0, doc="branch-and-bound half window in yaw", unit="deg")
     loop_min_score: float = param(0.6, lo=0.0, hi=1.0, doc="branch-and-bound score a loop must exceed (coarse field)")
     loop_min_inliers: float = param(0.6, lo=0.0, hi=1.0, doc="after refinement, share of points within 1σ of the submap")
@@ -182,7 +185,7 @@ class PoseGraph:
     cfg: GraphConfig = field(default_factory=GraphConfig)
 
     def __post_init__(self) -> None:
-        self.isam = _isam()
+        self.isam: gtsam.ISAM2 | None = _isam()
         self.pending = gtsam.NonlinearFactorGraph()
         self.pending_values = gtsam.Values()
         self.all_factors = gtsam.NonlinearFactorGraph()
@@ -195,9 +198,13 @@ class PoseGraph:
         self.odom_scale = 1.0  # estimated in the final solve (`odom_scale = "estimate"`)
         self.gyro_bias = 0.0  # rad/s, estimated in the final solve (`gyro_bias = "estimate"`): the latest block's
         self.gyro_biases = np.zeros(0)  # rad/s per bias block (gyro_bias_block_s) after a solve
+        self._chain: dict[int, np.ndarray] = {}  # node i → information (3×3) of the factors between i − 1 and i
+        self.weak_nodes: list[int] = []  # nodes a weak motion prior chains to the one before (nothing else did)
+        self.solver_notes: list[tuple[int | None, str]] = []  # (node or None, what failed and what solved instead)
+        self.factorization = "CHOLESKY"  # ISAM2's; QR after an indeterminate system (see _recover)
 
     def __getstate__(self) -> dict:
-        """Pickled (a SLAM run in another process, mapping/slamproc.py) without gtsam's ISAM2, which does not
+        """Pickled (a SLAM run in another process, mapping/runtime/slamproc.py) without gtsam's ISAM2, which does not
         pickle: the copy keeps its factors, edges and estimate but cannot be extended."""
         state = dict(self.__dict__)
         state["isam"] = None
@@ -242,9 +249,14 @@ class PoseGraph:
 
     def _add(self, kind: str, a: int, b: int, meas: np.ndarray, sigmas: np.ndarray, robust: bool, score: float = float("nan"),
              cov: np.ndarray | None = None, dt: float = float("nan"), online: np.ndarray | None = None):
-        model = self._noise(sigmas, robust) if cov is None else gtsam.noiseModel.Gaussian.Covariance(np.asarray(cov, dtype=float))
+        if cov is not None:
+            cov = _finite_covariance(cov)
+        model = self._noise(sigmas, robust) if cov is None else gtsam.noiseModel.Gaussian.Covariance(cov)
         if cov is not None:
             sigmas = np.sqrt(np.diag(cov))
+        if kind in CHAIN_KINDS and b == a + 1:
+            info = np.linalg.inv(cov) if cov is not None else np.diag(1.0 / np.asarray(sigmas, dtype=float) ** 2)
+            self._chain[b] = self._chain.get(b, 0.0) + info
         fm = meas if online is None else online  # the factor's measurement (calibrated); the edge keeps the raw one
         f = _factor(kind, a, b, fm, model)
         self.pending.add(f)
@@ -309,18 +321,75 @@ class PoseGraph:
 
     # ---- solving ----------------------------------------------------------------------------------------------------
     def update(self, full: bool = False) -> None:
-        """Push pending factors into ISAM2; refresh the estimate of every node when `full` (after a loop)."""
+        """Push pending factors into ISAM2; refresh the estimate of every node when `full` (after a loop). Every new
+        node is chained to the one before first (`_chain_new_nodes`); an indeterminate system restarts the solver
+        (`_restart`) instead of ending the run."""
         if self.pending.size() == 0 and self.pending_values.size() == 0:
             return
-        self.isam.update(self.pending, self.pending_values)
+        self._chain_new_nodes()
+        new, self.n_pending_nodes = self.n_pending_nodes, 0
+        try:
+            if self.isam is None:
+                raise RuntimeError("no incremental solver")
+            self.isam.update(self.pending, self.pending_values)
+        except RuntimeError as e:
+            if self.isam is not None:
+                self.solver_notes.append((_node_of(e), f"ISAM2: {_first_line(e)}"))
+            self.pending = gtsam.NonlinearFactorGraph()
+            self.pending_values = gtsam.Values()
+            if self.isam is not None or full:  # (batch mode: a batch solve only after loops, else the guesses stand)
+                self._restart(self._values(), after_failure=self.isam is not None)
+            return
         self.pending = gtsam.NonlinearFactorGraph()
         self.pending_values = gtsam.Values()
-        new, self.n_pending_nodes = self.n_pending_nodes, 0
         if full:  # after loops every node may move
             self._read(self.isam.calculateEstimate())
         else:  # without loops only the new nodes move noticeably
             for i in range(self.n - new, self.n):
                 self.est[i] = _xyth(self.isam.calculateEstimatePose2(i))
+
+    def _chain_new_nodes(self) -> None:
+        """A weak motion prior (the front end's motion between the guesses, σ WEAK_SIGMAS) between each pending node
+        and the one before when the factors between them (match, odometry, gyro) leave a direction unconstrained
+        or are not finite: no keyframe is left floating (a node held by a yaw-only gyro factor alone makes ISAM2's
+        Cholesky factorisation fail: 'Indeterminate linear system')."""
+        for i in range(max(self.n - self.n_pending_nodes, 1), self.n):
+            info = self._chain.get(i)
+            if info is not None and _strong(info):
+                continue
+            rel = self.initial.atPose2(i - 1).between(self.initial.atPose2(i))
+            self._add("motion", i - 1, i, _xyth(rel), WEAK_SIGMAS, robust=False)
+            self.weak_nodes.append(i)
+
+    def _values(self) -> gtsam.Values:
+        vals = gtsam.Values()
+        for i in range(self.n):
+            vals.insert(i, gtsam.Pose2(*map(float, self.est[i])))
+        return vals
+
+    def _restart(self, values, after_failure: bool = False) -> None:
+        """ISAM2 anew over every factor from `values`: with the current factorisation, else QR (which does not
+        square the system's condition number as Cholesky does), else no incremental solver at all: a batch
+        Levenberg–Marquardt solve now and after each later loop, the front end's guesses in between. `after_failure`:
+        the current factorisation has just failed, start with the next."""
+        order = ("CHOLESKY", "QR")
+        first = order.index(self.factorization) + after_failure if self.factorization in order else len(order)
+        for fac in order[first:]:
+            isam = _isam(fac)
+            try:
+                isam.update(self.all_factors, values)
+            except RuntimeError as e:
+                self.solver_notes.append((_node_of(e), f"ISAM2 ({fac.lower()}): {_first_line(e)}"))
+                continue
+            if fac != self.factorization:
+                self.solver_notes.append((None, f"re-solved with ISAM2's {fac} factorisation"))
+            self.isam, self.factorization = isam, fac
+            self._read(isam.calculateEstimate())
+            return
+        if self.factorization != "LM":
+            self.solver_notes.append((None, "solved in batch (Levenberg–Marquardt) from there on"))
+        self.isam, self.factorization = None, "LM"
+        self._read(_levenberg_marquardt(self.all_factors, values))
 
     def _read(self, values) -> None:
         arr = gtsam.utilities.extractPose2(values)  # rows in key order: keys are 0 … n−1 (Vector keys ignored)
@@ -329,31 +398,34 @@ class PoseGraph:
     def optimize(self, max_iterations: int = 100) -> dict:
         """Batch solve of every factor from the current estimate: LM, or GNC (truncated least squares on loops)."""
         self.update()
-        vals = gtsam.Values()
-        for i in range(self.n):
-            vals.insert(i, gtsam.Pose2(*map(float, self.est[i])))
+        vals = self._values()
         # 1. every factor as added (scale 1, bias in the gyro σ): gtsam's own optimizer, in C++
         before = self.all_factors.error(vals)
         known = [i for i, e in enumerate(self.edges) if e.kind != "loop"]
         outliers: set[int] = set()
+        result = None
         if self.cfg.robust_kernel == "gnc":
             params = gtsam.GncLMParams()
             params.setKnownInliers(known)
-            gnc = gtsam.GncLMOptimizer(self.all_factors, vals, params)
-            result = gnc.optimize()
-            outliers = {i for i, w in enumerate(np.asarray(gnc.getWeights())) if w < 0.5}  # loops GNC rejected
-        else:
-            params = gtsam.LevenbergMarquardtParams()
-            params.setMaxIterations(max_iterations)
-            result = gtsam.LevenbergMarquardtOptimizer(self.all_factors, vals, params).optimize()
+            try:
+                gnc = gtsam.GncLMOptimizer(self.all_factors, vals, params)
+                result = gnc.optimize()
+                outliers = {i for i, w in enumerate(np.asarray(gnc.getWeights())) if w < 0.5}  # loops GNC rejected
+            except RuntimeError as e:
+                self.solver_notes.append((_node_of(e), f"GNC: {_first_line(e)}; solved with Levenberg–Marquardt"))
+        if result is None:
+            result = _levenberg_marquardt(self.all_factors, vals, max_iterations, self.solver_notes)
         graph = self.all_factors
         # 2. with the odometry scale and the gyro bias as variables (Python CustomFactors): damped Gauss–Newton from
         # there. gtsam's optimizers call Python factors ~15× slower than linearize() + optimize() do (measured:
         # 5.7 s vs 0.35 s per iteration on 1664 nodes), so the loop is ours.
         full, _ = self._batch_graph(result, outliers)
         if full is not self.all_factors:
-            graph = full
-            result = _gauss_newton(full, result, max_iterations=20)
+            try:
+                result = _gauss_newton(full, result, max_iterations=20)
+                graph = full
+            except RuntimeError as e:  # the solution without the scale and bias variables stands
+                self.solver_notes.append((_node_of(e), f"odometry scale and gyro bias not estimated: {_first_line(e)}"))
         self._read(result)
         if result.exists(SCALE_KEY):
             self.odom_scale = float(result.atVector(SCALE_KEY)[0])
@@ -374,13 +446,15 @@ class PoseGraph:
         current estimate); later factors and the front end's prediction use them. With `rebase` the running estimate
         becomes that solution too (else it stays as it is)."""
         self.update()
-        vals = gtsam.Values()
-        for i in range(self.n):
-            vals.insert(i, gtsam.Pose2(*map(float, self.est[i])))
+        vals = self._values()
         full, _ = self._batch_graph(vals, use_scale=scale)
         if full is self.all_factors:
             return
-        res = _gauss_newton(full, vals, max_iterations=max_iterations)
+        try:
+            res = _gauss_newton(full, vals, max_iterations=max_iterations)
+        except RuntimeError as e:  # this calibration is skipped; the final solve tries again
+            self.solver_notes.append((_node_of(e), f"calibration while running skipped: {_first_line(e)}"))
+            return
         if res.exists(SCALE_KEY):
             self.odom_scale = float(res.atVector(SCALE_KEY)[0])
         self._read_biases(res)
@@ -405,9 +479,7 @@ class PoseGraph:
         poses = gtsam.Values()
         for i in range(self.n):
             poses.insert(i, values.atPose2(i))
-        self.isam = _isam()
-        self.isam.update(fs, poses)
-        self._read(self.isam.calculateEstimate())
+        self._restart(poses)
 
     def _read_biases(self, values) -> None:
         """The gyro bias blocks of a solution; the latest one is what new factors and the front end use."""
@@ -525,8 +597,9 @@ def _factor(kind: str, a: int, b: int, meas, model):
     return gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(*map(float, meas)), model)
 
 
-def _isam() -> gtsam.ISAM2:
+def _isam(factorization: str = "CHOLESKY") -> gtsam.ISAM2:
     p = gtsam.ISAM2Params()
+    p.setFactorization(factorization)
     p.setRelinearizeThreshold(0.01)
     p.relinearizeSkip = 1
     return gtsam.ISAM2(p)
@@ -534,3 +607,60 @@ def _isam() -> gtsam.ISAM2:
 
 def _xyth(p) -> np.ndarray:
     return np.array([p.x(), p.y(), p.theta()])
+
+
+CHAIN_KINDS = ("match", "odom", "gyro", "motion")  # factors between consecutive nodes that chain them
+# The weak motion prior's σ (x, y, yaw): as loose as the loosest match factor alone may be (mapping/slam.py's
+# MAX_MATCH_VAR, 1 m / 1 rad), so a node it chains follows the front end's motion unless loops pull it elsewhere.
+WEAK_SIGMAS = np.array([1.0, 1.0, 1.0])
+CHAIN_MIN_INFO = 0.5  # a chain whose information is below this (m⁻², rad⁻²) in some direction gets the prior
+MAX_VAR = 1e6  # m², rad²: a covariance is clipped to this (a non-finite or negative variance becomes it)
+
+
+def _strong(info: np.ndarray) -> bool:
+    """The information between two nodes constrains every direction (x, y, yaw) at least CHAIN_MIN_INFO."""
+    if not np.all(np.isfinite(info)):
+        return False
+    return float(np.linalg.eigvalsh(0.5 * (info + info.T))[0]) >= CHAIN_MIN_INFO
+
+
+def _finite_covariance(cov) -> np.ndarray:
+    """A symmetric positive-definite covariance: non-finite or out-of-range eigenvalues clipped to [1e-12, MAX_VAR]
+    (a NaN in a factor's covariance makes the whole linear system indeterminate)."""
+    c = np.asarray(cov, dtype=float)
+    if np.all(np.isfinite(c)):
+        w, v = np.linalg.eigh(0.5 * (c + c.T))
+        if w[0] > 0 and w[-1] <= MAX_VAR:
+            return c
+    else:
+        c = np.where(np.isfinite(c), c, 0.0) + np.diag(np.where(np.isfinite(np.diag(c)), 0.0, MAX_VAR))
+        w, v = np.linalg.eigh(0.5 * (c + c.T))
+    w = np.clip(w, 1e-12, MAX_VAR)
+    return (v * w) @ v.T
+
+
+def _levenberg_marquardt(graph, values, max_iterations: int = 100, notes: list | None = None):
+    """gtsam's batch Levenberg–Marquardt from `values` (its damping solves what a plain factorisation finds
+    indeterminate); `values` unchanged if even it fails."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(max_iterations)
+    try:
+        return gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize()
+    except RuntimeError as e:
+        if notes is not None:
+            notes.append((_node_of(e), f"batch solve failed ({_first_line(e)}): the front end's poses stand"))
+        return values
+
+
+def _node_of(err: Exception) -> int | None:
+    """The node gtsam names in an indeterminate-system message ('… near variable 5234 …'), if any."""
+    import re
+
+    m = re.search(r"near variable\s+(\d+)", str(err))
+    return int(m.group(1)) if m else None
+
+
+def _first_line(err: Exception) -> str:
+    """The gist of a gtsam error: its first sentence, on one line."""
+    text = " ".join(str(err).split())
+    return (text.split(". ")[0].rstrip(".") if text else type(err).__name__)

@@ -107,6 +107,9 @@ class LoopStats:
     rejected_ambiguous: int = 0  # a distinct second peak nearly as good (ratio test)
     rejected_degenerate: int = 0  # a direction the match does not fix
     stacked_queries: int = 0
+    widened: int = 0  # searches whose window the drift since the last loop widened beyond loop_linear_window
+    widest_window: float = 0.0  # the widest linear half window searched (m)
+    drift_per_m: float = 0.0  # the drift rate the last accepted loops measured (m of correction per m travelled)
     skipped_outside: int = 0  # candidates skipped: the narrow query reaches past the candidate map (loop_min_overlap)
     seconds: float = 0.0
     grid_bytes: int = 0  # pyramids built over the run (cumulative)
@@ -121,6 +124,45 @@ def bearing_coverage(points: np.ndarray) -> float:
         return 0.0
     b = np.floor((np.arctan2(points[:, 1], points[:, 0]) + math.pi) / (2 * math.pi) * 36).astype(np.int64)
     return float(len(np.unique(np.clip(b, 0, 35)))) / 36.0
+
+
+class DriftModel:
+    """How far the current estimate may have drifted since the last accepted loop, so the search looks there.
+
+    Between loops nothing but the front end (and the wheels) places the robot, and its error grows with the
+    travel: σ = rate · travel. `rate` starts at `loop_drift_per_m` and follows what accepted loops measure (the
+    distance from the estimate to where the match put the node, over the travel since the previous loop:
+    Olson 2009's "how far could we be" argument for the loop search's window). The search's half window is 3σ,
+    never below `loop_linear_window` nor above `loop_max_linear_window`; the candidates' radius grows with it."""
+
+    def __init__(self, cfg: GraphConfig) -> None:
+        self.cfg = cfg
+        self.rate = float(cfg.loop_drift_per_m)
+        self.travel = 0.0  # metres of front-end travel since the last accepted loop
+        self._last: np.ndarray | None = None
+        self._worst = 0.0  # largest correction among this search's accepted loops
+
+    def travel_to(self, pose: np.ndarray) -> None:
+        if self._last is not None:
+            self.travel += math.hypot(pose[0] - self._last[0], pose[1] - self._last[1])
+        self._last = pose[:2].copy()
+
+    def window(self) -> float:
+        c = self.cfg
+        return float(min(max(c.loop_linear_window, 3.0 * self.rate * self.travel), max(c.loop_max_linear_window,
+                                                                                           c.loop_linear_window)))
+
+    def corrected(self, pose: np.ndarray, guess: np.ndarray) -> None:
+        self._worst = max(self._worst, math.hypot(pose[0] - guess[0], pose[1] - guess[1]))
+
+    def reset(self) -> None:
+        """A loop was accepted: the rate moves towards what it measured (over at least 10 m of travel, so that a
+        loop right after another does not read its matching noise as drift), the travel starts again."""
+        if self.travel >= 10.0:
+            sample = self._worst / self.travel
+            self.rate = float(max(0.5 * self.cfg.loop_drift_per_m, 0.8 * self.rate + 0.2 * sample))
+        self.travel = 0.0
+        self._worst = 0.0
 
 
 class LoopCloser:
@@ -138,6 +180,7 @@ class LoopCloser:
         self._cache: OrderedDict[tuple[int, int], SubmapFields] = OrderedDict()  # (submap, neighbours) → fields
         # recent keyframes for stacked queries: (id, front-end pose, thinned points, narrow)
         self._recent: deque[tuple[int, np.ndarray, np.ndarray, bool]] = deque()
+        self.drift = DriftModel(self.cfg)
 
     def add_node(self, kf: Keyframe, graph: PoseGraph) -> None:
         """Register a keyframe (after the graph has its node); finish a submap every `submap_nodes` nodes."""
@@ -150,6 +193,7 @@ class LoopCloser:
         pts = voxel_filter(pts, c.loop_point_voxel)
         self.points[kf.id] = pts
         narrow = c.loop_query == "stack" or bearing_coverage(kf.points) < NARROW_COVERAGE
+        self.drift.travel_to(np.asarray(kf.local_pose, dtype=float))
         self._recent.append((kf.id, np.asarray(kf.local_pose, dtype=float), pts, narrow))
         self._trim_recent()
         self.open_nodes.append(kf.id)
@@ -222,7 +266,7 @@ class LoopCloser:
         coarse = LikelihoodField.covering(allp, c.loop_resolution, c.loop_sigma)
         fine = LikelihoodField(coarse.origin, coarse.resolution, coarse.shape[1], coarse.shape[0], c.loop_sigma_fine)
         fine.insert(allp)
-        w = int(math.ceil(c.loop_linear_window / c.loop_resolution))
+        w = int(math.ceil(max(c.loop_linear_window, c.loop_max_linear_window) / c.loop_resolution))
         grids = SearchGrids(coarse, depth=1 + max(1, int(math.ceil(math.log2(w + 1)))))
         f = SubmapFields(coarse, fine, grids, allp.min(axis=0) if len(allp) else np.zeros(2),
                          allp.max(axis=0) if len(allp) else np.zeros(2))
@@ -256,7 +300,7 @@ class LoopCloser:
             self._anchors = np.array([sm.anchor for sm in self.submaps])
         world = se2.compose(graph.est[self._anchors[:last]], self._centres[:last])
         dist = np.hypot(world[:, 0] - p[0], world[:, 1] - p[1])
-        near = np.flatnonzero(dist <= c.loop_search_radius)
+        near = np.flatnonzero(dist <= c.loop_search_radius + self.drift.window() - c.loop_linear_window)
         near = near[np.argsort(dist[near])][: c.loop_max_candidates]
         return [self.submaps[i] for i in near]
 
@@ -281,12 +325,16 @@ class LoopCloser:
                 continue
             lc = self.verify(sm, pts, guess, f, narrow)
             if lc is not None:
+                self.drift.corrected(lc[0], guess)
                 # Tie the loop to the member whose pose is nearest the match, not to the anchor: the submap is
                 # only as rigid as the front end was while it was built, so the constraint is truest nearby.
                 pose = lc[0]
                 j = int(np.argmin(np.hypot(*(sm.member_poses[:, :2] - pose[:2]).T))) if self.cfg.loop_nearest_member else 0
                 rel = se2.between(sm.member_poses[j], pose)
                 found.append(LoopConstraint(sm.node_ids[j], node, rel, lc[1], lc[2], sm.index, lc[3], lc[4]))
+        if found:
+            self.drift.reset()
+        self.stats.drift_per_m = self.drift.rate
         self.loops.extend(found)
         self.stats.seconds += time.perf_counter() - t0
         return found
@@ -298,12 +346,17 @@ class LoopCloser:
         c = self.cfg
         self.stats.searches += 1
         f = f if f is not None else self.fields(sm)
-        # narrow scans only: reject a rival scoring above ratio · best, or fitting less than `misfit` times worse
-        # (misfit = 1 − score); the rival need only be searched above the lower of the two scores that reject
-        ratio = c.loop_peak_ratio if narrow else 1.0
+        # narrow scans: reject a rival scoring above ratio · best, or fitting less than `misfit` times worse
+        # (misfit = 1 − score); the rival need only be searched above the lower of the two scores that reject.
+        # A wide scan's rival is searched too, but rejects only a degenerate match (below): a corridor slid along
+        ratio = c.loop_peak_ratio if narrow or c.degenerate_ratio > 0 else 1.0
         misfit = c.loop_peak_misfit if narrow else 1.0
         floor = (lambda best: min(ratio * best, 1.0 - misfit * (1.0 - best))) if (ratio < 1.0 or misfit > 1.0) else None
-        pose, score, second = search_two_peaks(f.grids, pts, guess, c.loop_linear_window,
+        window = self.drift.window()
+        if window > c.loop_linear_window:
+            self.stats.widened += 1
+        self.stats.widest_window = max(self.stats.widest_window, window)
+        pose, score, second = search_two_peaks(f.grids, pts, guess, window,
                                                math.radians(c.loop_angular_window_deg), c.loop_min_score,
                                                c.loop_peak_exclusion, floor)
         if pose is None:
@@ -318,12 +371,13 @@ class LoopCloser:
         if inl < c.loop_min_inliers:
             self.stats.rejected_inliers += 1
             return None
-        if second > 0.0 and ((ratio < 1.0 and second > ratio * score)
-                             or (misfit > 1.0 and (1.0 - second) < misfit * (1.0 - score))):
-            self.stats.rejected_ambiguous += 1
-            return None
         lo, hi, _ = translation_information(h)
         info_ratio = lo / hi if hi > 0 else 0.0
+        rival = narrow or info_ratio < c.degenerate_ratio  # a wide scan's match faces its rival only when degenerate
+        if rival and second > 0.0 and ((ratio < 1.0 and second > ratio * score)
+                                       or (misfit > 1.0 and (1.0 - second) < misfit * (1.0 - score))):
+            self.stats.rejected_ambiguous += 1
+            return None
         if info_ratio < c.loop_min_information_ratio:
             self.stats.rejected_degenerate += 1
             return None

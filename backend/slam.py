@@ -15,11 +15,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from kosmap.backend.consistency import consistency, keep_points
+from kosmap.backend.consistency import warning as consistency_warning
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.imu import GyroBuffer
 from kosmap.backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
 from kosmap.backend.loops import LoopCloser, LoopConstraint
 from kosmap.backend.manhattan import ManhattanHeading
+from kosmap.backend.slamhealth import HealthTracker
+from kosmap.backend.slamhealth import warnings as stretch_warnings
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.odometry import OdometryConfig, make_odometry
@@ -50,6 +54,8 @@ class SlamResult:
     loop_stats: dict = field(default_factory=dict)
     imu_stats: dict = field(default_factory=dict)  # gyro factors made and intervals skipped (gap, stuck, uncovered)
     heading_stats: dict | None = None  # Manhattan heading priors (backend/manhattan.py), when on
+    stretches: dict = field(default_factory=dict)  # where the run had little to go by (backend/slamhealth.py)
+    consistency: dict = field(default_factory=dict)  # does the map agree with itself (backend/consistency.py)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -102,6 +108,8 @@ class Slam:
         self.imu_warnings: list[str] = []
         self._prev_scan: tuple[int, np.ndarray] | None = None  # (stamp, raw wheel odometry) of the last scan
         self._fused: np.ndarray | None = None  # wheel translation + gyro yaw, the front end's prediction
+        self.key_points: list[np.ndarray] = []  # per keyframe, a few of its points for the consistency check
+        self.health = HealthTracker()  # stretches without scans, odometry or a determined match (the feed sets expect_odom)
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
@@ -191,6 +199,11 @@ class Slam:
         t0 = time.perf_counter()
         if self.gyro_pending and self._gyro_settled(self.gyro_pending[0][3], int(stamp_ns)):
             self._flush_gyro(final=False, now_ns=int(stamp_ns))
+        if odom_pose is None and hasattr(self.frontend, "prev_odom"):
+            # the next odometry sample after a gap must not be differenced with the last one before it: the front end
+            # has moved by matching since, and would count the motion across the gap twice (10 s without odometry on
+            # the synthetic ring: ATE 8.7 m)
+            self.frontend.prev_odom = None
         res = self.frontend.update(stamp_ns, points, self._predict_with_gyro(stamp_ns, odom_pose))
         t1 = time.perf_counter()
         self.t["frontend"] += t1 - t0
@@ -199,12 +212,15 @@ class Slam:
         self.local.extend(map(float, res.pose))
         self.odom.extend(_NAN3 if odom_pose is None else map(float, odom_pose))
         self.matched.append(bool(res.matched))
+        self.health.scan(stamp_ns, len(points) >= self.ocfg.min_points, odom_pose is not None)
         if self.points is not None:
             self.points.append(np.asarray(points, dtype=np.float32))
         if self.select(res.pose, len(points)):
             cov = res.covariance(self.gcfg.match_n_eff) if self.gcfg.match_noise == "hessian" else None
             kf = Keyframe(len(self.keyframes), i, int(stamp_ns), res.pose, np.asarray(points, dtype=float),
                           None if odom_pose is None else np.asarray(odom_pose, dtype=float), res.score, cov)
+            self.health.keyframe(stamp_ns, res.pose, kf.points)
+            self.key_points.append(keep_points(kf.points))
             self._add_keyframe(kf)
             # the loop closer has taken its thinned float32 copy (backend/loops.py); the full scan is not kept for the
             # whole run (5–17 KB a keyframe as float64: ~10 MB per 5 minutes of the office on both SLAMs)
@@ -292,6 +308,13 @@ class Slam:
         kos = np.array(self.key_of_scan, dtype=np.int64)
         poses = scan_poses(local, kos, key_local, self.graph.est)
         stamps = np.array(self.stamps, dtype=np.int64)
+        st = self.health.finish(np.array([k.stamp_ns for k in self.keyframes], dtype=np.int64), self.graph.weak_nodes,
+                                self.graph.solver_notes)
+        health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
+        con = consistency((np.array([k.stamp_ns for k in self.keyframes]) - stamps[0]) * 1e-9, self.graph.est,
+                          self.key_points, [r[1] for r in self.graph.loop_residuals()], self.gcfg.loop_sigma_xy)
+        bent = consistency_warning(con)
+        health += [bent] if bent else []
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
                           np.array(self.matched, dtype=bool), kos, self.keyframes, self.graph, list(self.found), dict(self.t),
                           points=self.points, recoveries=getattr(self.frontend, "recoveries", 0),
@@ -299,7 +322,8 @@ class Slam:
                           loop_stats=dataclasses.asdict(self.loops.stats), imu_stats=dict(self.imu_stats),
                           heading_stats=None if self.heading is None else dataclasses.asdict(self.heading.stats),
                           warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]
-                                                              if self.heading is not None and self.heading.stats.disabled else []))
+                                                              if self.heading is not None and self.heading.stats.disabled else [])
+                          + health, stretches=st.as_dict(int(stamps[0])), consistency=con.as_dict())
 
 
 _NAN3 = (math.nan, math.nan, math.nan)

@@ -402,3 +402,14 @@ def inlier_fraction(field, ox, oy, res, pts, pose, threshold):
         if v > threshold:
             good += 1
     return good / max(n, 1)
+
+
+def translation_information(h: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """Eigenvalues (smallest, largest) of the translational information with yaw marginalised out (the Schur
+    complement H_tt − H_tθ H_θθ⁻¹ H_θt of a match's 3×3 Gauss–Newton information), and the weakest direction."""
+    h = np.asarray(h, dtype=float)
+    htt = h[:2, :2]
+    if h[2, 2] > 1e-12:
+        htt = htt - np.outer(h[:2, 2], h[2, :2]) / h[2, 2]
+    w, v = np.linalg.eigh(0.5 * (htt + htt.T))
+    return float(max(w[0], 0.0)), float(max(w[1], 0.0)), v[:, 0]

@@ -69,6 +69,9 @@ class OdometryConfig(StageConfig):
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
     densify_max_gap: float = param(0.3, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
     point_spacing: float = param(0.05, lo=0.0, doc="drop a return nearer than this to the last one kept, in scan order (0 = keep all)", unit="m")
+    degenerate_ratio: float = param(0.25, lo=0.0, hi=1.0, doc="a match whose weakest translational information is below "
+                                    "this × its strongest takes the missing information from the wheel-odometry "
+                                    "prediction, along that direction only (0 = off)")
 
 
 @dataclass
@@ -241,6 +244,27 @@ def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: floa
     return W
 
 
+def degeneracy_prior(info: np.ndarray, ratio: float) -> np.ndarray | None:
+    """The prior weight a degenerate match needs (Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based
+    state estimation problems": leave the directions the measurements do not fix to the motion prediction).
+
+    Along a bare corridor the scan fixes the lateral position and the heading; along the corridor its only pull
+    comes from where the walls' returns end, which moves with the sensor (the range or grazing-angle limit), so
+    matching drags every scan back onto the map it already has and the corridor shrinks (the simulated
+    long-corridor world, 180° laser: 41 m of corridor mapped as 12 m). With the translational information
+    (yaw marginalised) having eigenvalues λ_lo ≤ λ_hi, a match with λ_lo < ratio·λ_hi gets (ratio·λ_hi − λ_lo)
+    added along the weak eigenvector: the odometry then weighs there as much as the scan may at most be
+    trusted less than in its best direction. None when the match is well conditioned."""
+    from kosmap.frontend.matcher import translation_information
+
+    lo, hi, v = translation_information(info)
+    if hi <= 0 or lo >= ratio * hi:
+        return None
+    extra = np.zeros((3, 3))
+    extra[:2, :2] = (ratio * hi - lo) * np.outer(v, v)
+    return extra
+
+
 class _LocalSubmap:
     """A local submap: a coarse and a fine likelihood field around where it started, and its keyframe count."""
 
@@ -321,6 +345,14 @@ class SubmapOdometry:
         f = sm.fine
         pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior, W,
                                          cfg.gn_iterations, welsch, f.sigma)
+        if has_odom and cfg.degenerate_ratio > 0:
+            extra = degeneracy_prior(info, cfg.degenerate_ratio)
+            if extra is not None:  # a corridor: solve again from the prediction, the odometry holding the weak direction
+                W = W + extra
+                p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, prior, prior, W,
+                                        cfg.gn_iterations, welsch, c.sigma)
+                pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior,
+                                                 W, cfg.gn_iterations, welsch, f.sigma)
         return np.asarray(pose, dtype=float), float(score), info
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:

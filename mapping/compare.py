@@ -307,6 +307,8 @@ def make_canvas(a: OccupancyGrid, b: OccupancyGrid, T: np.ndarray, max_cells: in
     """The finer resolution over the union of both maps' extents (coarsened if that exceeds max_cells)."""
     pts = np.vstack((_corners(a, T), _corners(b, np.eye(3))))
     res = min(a.resolution, b.resolution)
+    if not (np.isfinite(pts).all() and res > 0):  # (NaN extents would coarsen the canvas for ever)
+        raise CompareError("a map's origin, resolution or alignment is not a finite number; check the maps' YAML")
     lo, hi = pts.min(axis=0), pts.max(axis=0)
     while True:
         w, h = (np.ceil((hi - lo) / res - 1e-9)).astype(int)

@@ -62,11 +62,11 @@ def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit:
     """Write the KOS scans of every depth frame of `log_path` into `out`; returns (and writes) the summary.
     `on_progress(frames done, frames expected)` is called after each frame."""
     out = check_out(out)
-    with open_log(log_path) as log:  # refuse a log without depth before writing anything
+    with open_log(log_path, cfg.topics.on_damage) as log:  # refuse a log without depth before writing anything
         if not detect_topics(log.info().types(), cfg.topics).depth:
             raise TopicError(f"{Path(log_path).name} has no depth image topic; kosmap scan needs one (name it with --depth-topic)")
-    with writing(out, SCAN_FILES, inputs=(log_path,), command="scan"):  # the last scan's files go, not the user's
-        return _scan_into(log_path, out, cfg, figures, limit, on_progress)
+    with writing(out, SCAN_FILES, inputs=(log_path,), command="scan") as stage:  # replace the last scan's when done
+        return _scan_into(log_path, stage, cfg, figures, limit, on_progress)
 
 
 SCAN_FILES = ("config.toml", "kos.mcap", "scan_points.csv", "kos_top_*.png", "summary.json")  # what a scan writes

@@ -203,7 +203,7 @@ def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = Non
               on_frame: Callable[[KosFrame], None] | None = None, workers: int = 0) -> Iterator[KosStep]:
     """Stream the log once: FSPF+ → KOS per depth frame (in `workers` processes; 0 = here), cameras merged per
     step, fused with the nearest laser scan."""
-    log = open_log(log_path)
+    log = open_log(log_path, cfg.topics.on_damage)
     try:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)

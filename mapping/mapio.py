@@ -8,6 +8,7 @@ Image row 0 is the map's top, grid row 0 its bottom: rows are flipped on the way
 from __future__ import annotations
 
 import os
+import re
 from pathlib import Path
 
 import cv2
@@ -20,6 +21,11 @@ from kosmap.mapping.grid import OccupancyGrid
 FREE, OCCUPIED, UNKNOWN = 254, 0, 205
 OCCUPIED_THRESH, FREE_THRESH = 0.65, 0.196
 REQUIRED_KEYS = ("image", "resolution", "origin")
+# What a map file may say. Pixels: 2^28 (16384², 819 m square at 5 cm; ~2 GB as the float grey levels read here).
+# Resolution: 0.1 mm to 1 km per pixel. Origin: within ±10^8 m (UTM northings reach 10^7 m).
+MAX_MAP_PIXELS = 1 << 28
+MIN_RESOLUTION, MAX_RESOLUTION = 1e-4, 1e3
+MAX_ORIGIN_M = 1e8
 
 
 class MapError(KosmapError):
@@ -74,10 +80,15 @@ def read_map_server(yaml_path: str | Path) -> OccupancyGrid:
     res = meta["resolution"]
     if isinstance(res, bool) or not isinstance(res, (int, float)) or not res > 0 or not np.isfinite(res):
         raise MapError(f"{yp}: resolution {res!r} must be a positive number of metres per pixel")
+    if not MIN_RESOLUTION <= res <= MAX_RESOLUTION:
+        raise MapError(f"{yp}: resolution {res!r} m/pixel is not a map's: give one between {MIN_RESOLUTION:g} and "
+                       f"{MAX_RESOLUTION:g} m/pixel")
     origin = meta["origin"]
     if (not isinstance(origin, (list, tuple)) or len(origin) != 3
             or not all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in origin)):
         raise MapError(f"{yp}: origin {origin!r} must be [x, y, yaw] numbers")
+    if not all(np.isfinite(v) and abs(v) <= MAX_ORIGIN_M for v in origin):
+        raise MapError(f"{yp}: origin {origin!r} must be finite numbers, x and y within ±{MAX_ORIGIN_M:g} m")
     mode = meta.get("mode", "trinary")
     if mode not in ("trinary", "scale", "raw"):
         raise MapError(f"{yp}: mode {mode!r} must be trinary, scale or raw")
@@ -99,11 +110,39 @@ def read_map_server(yaml_path: str | Path) -> OccupancyGrid:
     return OccupancyGrid(np.ascontiguousarray(data[::-1]), float(res), (float(origin[0]), float(origin[1]), float(origin[2])))
 
 
+def _claimed_size(path: Path) -> tuple[int, int] | None:
+    """(width, height) a PNG's IHDR or a binary PGM/PPM header claims, without decoding; None for other files."""
+    with open(path, "rb") as f:
+        head = f.read(64)
+    if head[:8] == b"\x89PNG\r\n\x1a\n" and len(head) >= 24:
+        return int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+    if head[:2] in (b"P5", b"P6"):
+        text = re.sub(rb"#[^\n]*\n", b" ", head[2:])  # (comments may sit between the header's numbers)
+        nums = text.split()[:2]
+        if len(nums) == 2 and all(n.isdigit() for n in nums):
+            return int(nums[0]), int(nums[1])
+    return None
+
+
 def _read_gray(path: Path) -> tuple[np.ndarray | None, np.ndarray | None]:
-    """(grey 0..255 float, alpha 0..1 or None) of an image file, or (None, None) if it is not one."""
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED) if Path(path).is_file() else None
+    """(grey 0..255 float, alpha 0..1 or None) of an image file, or (None, None) if it is not one. MapError for
+    one whose header claims more than MAX_MAP_PIXELS (before it is decoded) or that does not decode."""
+    if not Path(path).is_file():
+        return None, None
+    size = _claimed_size(path)
+    if size is not None and size[0] * size[1] > MAX_MAP_PIXELS:
+        raise MapError(f"{path}: its header claims {size[0]}×{size[1]} pixels, more than a map kosmap reads "
+                       f"({MAX_MAP_PIXELS} pixels); check the file, or crop the map")
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes
+        raise MapError(f"{path} is not an image kosmap can read ({str(e).strip().splitlines()[-1]}); "
+                       f"check the file") from e
     if img is None:
         return None, None
+    if img.shape[0] * img.shape[1] > MAX_MAP_PIXELS:
+        raise MapError(f"{path}: {img.shape[1]}×{img.shape[0]} pixels, more than a map kosmap reads "
+                       f"({MAX_MAP_PIXELS} pixels); crop the map")
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     img = img.astype(np.float64) * (255.0 / scale)
     alpha = None

@@ -137,6 +137,17 @@ def map_warnings(metrics: dict) -> list[str]:
     return out
 
 
+def consistency_text(c: dict) -> str:
+    """A SLAM run's self-consistency in a few words (backend/consistency.py), for the report and the console."""
+    if not c:
+        return "–"
+    med = c.get("median_m")
+    head = ("no revisits" if med is None or med != med else
+            f"revisits {med:.3f} m off (90 %: {c['p90_m']:.3f} m, {c['revisit_keyframes']} keyframes)")
+    loops = f", {c['loops_disagreeing']}/{c['loops']} loops missed" if c.get("loops") else ""
+    return head + loops + (": likely bent" if c.get("bent") else "")
+
+
 def run_warnings(metrics: dict) -> list[str]:
     """The run's warnings (metrics.json) and the maps' (map_warnings), each once."""
     return list(dict.fromkeys(list(metrics.get("warnings", [])) + map_warnings(metrics)))
@@ -332,9 +343,13 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          "off" if not hd else (hd["priors"] if not hd["disabled"] else "not Manhattan"),
                          _f(s.get("ate", {}).get("rmse"), 3), _f(s.get("ate", {}).get("max"), 3),
                          _f(s.get("ate_frontend", {}).get("rmse"), 3), _f(s.get("ate_odometry", {}).get("rmse"), 3),
-                         _f(sum(v for v in sec.values()), 1)])
+                         consistency_text(s.get("consistency") or {}), _f(sum(v for v in sec.values()), 1)])
         B.append(("table", ["source", "scans", "keyframes", "loops", "heading priors", "ATE RMSE (m)", "ATE max (m)",
-                            "front end alone (m)", "wheel odometry (m)", "SLAM time (s)"], rows))
+                            "front end alone (m)", "wheel odometry (m)", "self-consistency", "SLAM time (s)"], rows))
+        B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how far "
+                       "its scans lie from the earlier ones' walls (median, and 90th percentile), and how many loops the "
+                       "solution misses by more than twice their σ; a consistent map is off by mm to a few cm "
+                       "(backend/consistency.py)."))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import math
 import time
-from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 
@@ -18,13 +17,13 @@ from kosmap.backend.slam import Slam, SlamResult
 from kosmap.frontend import se2
 from kosmap.frontend.errors import ConfigError, KosmapError, TopicError
 from kosmap.frontend.logs import detect_topics, open_log
-from kosmap.frontend.odometry import OdometryConfig, WheelOdometry, scan_points_base, scan_to_points
-from kosmap.frontend.records import Odometry, Scan, Transforms
+from kosmap.frontend.odometry import OdometryConfig, scan_points_base
+from kosmap.frontend.records import ImuSamples, Odometry, OdometrySamples, Scan, Transforms
 from kosmap.mapping.config import Config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosstream import KosStream, ScanRun
 from kosmap.mapping.runtime.framepool import FramePool
-from kosmap.mapping.slamfeed import ODOM_STALE_S, ODOM_WAIT_S, SlamFeed
+from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
 
 
 def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) -> np.ndarray | None:
@@ -62,100 +61,84 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
     slam = Slam(ocfg, cfg.graph)
     kept: list[Scan] | None = [] if keep_scans else None
     warnings: list[str] = []
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.scan:
             raise TopicError(f"{Path(path).name} has no sensor_msgs/LaserScan topic; --source laser needs one (see `kosmap info`)")
         use_odom = bool(det.odom) and ocfg.use_wheel_odometry
-        topics = [det.scan] + ([det.odom] if use_odom else []) + ([det.tf_static] if det.tf_static else [])
+        feed = SlamFeed(slam, use_odom, bool(det.imu))  # the build's feed (mapping/slamfeed.py): the same inputs
+        topics = [det.scan] + ([det.odom] if det.odom else []) + ([det.tf_static] if det.tf_static else [])
         topics += [det.ground_truth] if det.ground_truth else []  # read for scoring only, never used by SLAM
-        use_imu = bool(det.imu) and cfg.graph.imu
-        topics += [det.imu] if use_imu else []
-        slam.expect_imu = use_imu
-        gt_t: list[float] = []
-        gt_p: list[tuple[float, float, float]] = []
-        wheel = WheelOdometry()
-        pending: deque[Scan] = deque()
-        statics: dict[str, tuple[str, np.ndarray]] = {}
-        mounts: dict[str, np.ndarray] = {}
-        base = "base_link"
-        t_first = None
+        topics += [det.imu] if feed.use_imu else []
+        period = laser_period(cfg.build.laser_rate, info.count(det.scan), float(info.duration))
+        gt: list[np.ndarray] = []
+        statics: list[Transforms] = []
+        st = {"base": "base_link", "mount": None, "last": None, "first": None, "now": None}
         total = info.duration
-        state = {"empty": 0, "no_odom": 0}
-
-        def settled(stamp: int, now: int | None) -> bool:
-            """A scan goes to SLAM once the odometry (and the gyro) reach past it, or the log is ODOM_WAIT_S on."""
-            if now is not None and (now - stamp) * 1e-9 > ODOM_WAIT_S:
-                return True
-            return (not use_odom or wheel.covers(stamp)) and (not use_imu or slam.gyro.covers(stamp))
-
-        def process(scan: Scan) -> None:
-            frame = scan.frame_id.lstrip("/") or base
-            if frame not in mounts:
-                m = _mount(statics, base, frame)
-                if m is None:
-                    m = np.zeros(3)
-                    if frame != base:
-                        warnings.append(f"no static transform from {base} to {frame}; the scan is taken as mounted at {base}")
-                mounts[frame] = m
-            twist = wheel.twist_at(scan.stamp_ns, mounts[frame]) if use_odom and ocfg.deskew and scan.time_increment > 0 else None
-            pts = scan_to_points(scan, mounts[frame], ocfg.min_range, ocfg.max_range, twist)  # de-skewed when taken beam by beam
-            if len(pts) < ocfg.min_points:
-                state["empty"] += 1
-            odom = None
-            if use_odom and len(wheel) and wheel.t[0] - ODOM_STALE_S * 1e9 <= scan.stamp_ns <= wheel.t[-1] + ODOM_STALE_S * 1e9:
-                odom = wheel.pose_at(scan.stamp_ns)
-            elif use_odom:
-                state["no_odom"] += 1
-            slam.add_scan(scan.stamp_ns, pts, odom)
-            if kept is not None:
-                kept.append(scan)
-            wheel.drop_before(scan.stamp_ns - int(2e9))
-
-        for rec in log.read(topics):
-            if isinstance(rec, Odometry) and rec.topic == det.ground_truth:
-                gt_t.append(rec.stamp)
-                gt_p.append((rec.x, rec.y, rec.yaw))
-            elif isinstance(rec, Odometry):
-                base = rec.child_frame_id.lstrip("/") or base
-                wheel.add(rec.stamp_ns, rec.x, rec.y, rec.yaw)
-                while pending and settled(pending[0].stamp_ns, None):
-                    process(pending.popleft())
-            elif use_imu and rec.topic == det.imu:
-                slam.add_imu(rec)
-                while pending and settled(pending[0].stamp_ns, None):
-                    process(pending.popleft())
+        for rec in log.read_batched(topics):
+            if rec.stamp_ns and (st["now"] is None or rec.stamp_ns > st["now"]):
+                st["now"] = rec.stamp_ns
+            if isinstance(rec, (Odometry, OdometrySamples)):
+                cols = odometry_columns(rec)
+                if rec.topic == det.ground_truth:
+                    gt.append(np.column_stack(cols))
+                    continue
+                if rec.topic == det.odom:
+                    if st["base"] == "base_link" and rec.child_frame_id:
+                        st["base"] = rec.child_frame_id.lstrip("/") or "base_link"
+                    feed.wheel_samples(*cols)
+            elif isinstance(rec, ImuSamples):
+                ok = rec.has_angular_velocity
+                feed.gyro_samples(rec.stamps_ns[ok], rec.yaw_rate[ok])
             elif isinstance(rec, Transforms):
-                for tf in rec.transforms:
-                    statics[tf.child] = (tf.parent, np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]]))
+                if rec.static:
+                    statics.append(rec)
+            elif rec.topic == det.imu:
+                feed.imu(rec)
             elif isinstance(rec, Scan):
-                if t_first is None:
-                    t_first = rec.stamp_ns
-                if max_seconds is not None and (rec.stamp_ns - t_first) * 1e-9 > max_seconds:
+                if st["first"] is None:
+                    st["first"] = rec.stamp_ns
+                if max_seconds is not None and (rec.stamp_ns - st["first"]) * 1e-9 > max_seconds:
                     break
-                pending.append(rec)
-                while pending and settled(pending[0].stamp_ns, rec.stamp_ns):
-                    process(pending.popleft())
+                if st["last"] is None or rec.stamp_ns - st["last"] >= period - 1_000_000:
+                    if st["mount"] is None:
+                        st["mount"], w = laser_mount(statics, st["base"], rec.frame_id)
+                        warnings.extend([w] if w else [])
+                    feed.push_laser(rec, st["mount"])
+                    st["last"] = rec.stamp_ns
+                    if kept is not None:
+                        kept.append(rec)
                 if progress is not None:
-                    progress((rec.stamp_ns - t_first) * 1e-9, total)
-        while pending:
-            process(pending.popleft())
+                    progress((rec.stamp_ns - st["first"]) * 1e-9, total)
+            feed.advance(st["now"])
+        feed.end()
         warnings.extend(log.warnings)
-    result = slam.finish()
+    result = feed.result()
+    if result is None:
+        raise KosmapError(nothing_reached_slam(path, "laser scan", warnings))
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
-    result.mount = next(iter(mounts.values())) if mounts else np.zeros(3)
+    result.mount = st["mount"] if st["mount"] is not None else np.zeros(3)
     result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
-    if state["empty"]:
-        warnings.append(f"{state['empty']} scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
-    if state["no_odom"]:
-        warnings.append(f"{state['no_odom']} scan(s) lay outside the wheel odometry's time span: matched without it")
+    empty = result.stretches.get("unusable_scans", 0)
+    if empty:
+        warnings.append(f"{empty} scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
+    w = no_odom_warning(feed.no_odom, result.stretches, "laser")
+    warnings.extend([w] if w else [])
     result.warnings = warnings + result.warnings
     result.scans = kept
-    if gt_t:
-        result.ground_truth = (np.array(gt_t), np.array(gt_p))
+    if gt:
+        g = np.concatenate(gt)
+        result.ground_truth = (g[:, 0] * 1e-9, g[:, 1:4])
     return result
+
+
+def nothing_reached_slam(path, what: str, warnings: list[str]) -> str:
+    """The error of a run where no scan reached SLAM, with the first thing the reading skipped (the reason, when
+    the log's scans or frames could not be used) rather than a count of zero scans."""
+    why = f": {warnings[0].removeprefix(Path(path).name + ': ')}" if warnings else " (every scan was empty?)"
+    return f"{Path(path).name}: no {what} reached SLAM{why}; nothing to map"
 
 
 def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | None, workers: int) -> SlamResult:
@@ -174,7 +157,7 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     gt_t: list[float] = []
     gt_p: list[tuple[float, float, float]] = []
     state = {"t0": None, "empty": 0, "stop": False}
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.depth:
@@ -230,6 +213,8 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
         feed.advance(None)
         warnings.extend(run.warnings)
         warnings.extend(log.warnings)
+    if not slam.stamps:
+        raise KosmapError(nothing_reached_slam(path, "KOS scan", warnings))
     result = slam.finish()
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
@@ -237,8 +222,8 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
     result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
     if state["empty"]:
         warnings.append(f"{state['empty']} KOS scan(s) had fewer than {ocfg.min_points} returns: posed from odometry only")
-    if feed.no_odom:
-        warnings.append(f"{feed.no_odom} KOS scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it")
+    w = no_odom_warning(feed.no_odom, result.stretches, "KOS")
+    warnings.extend([w] if w else [])
     result.warnings = warnings + result.warnings
     result.scans = kept
     if gt_t:
@@ -313,7 +298,8 @@ def summary(result: SlamResult) -> dict:
     kinds = {e.kind for e in edges}
     return {"scans": int(len(result.stamps_ns)), "matched_scans": int(result.matched.sum()),
             "keyframes": len(result.keyframes), "loops": len(result.loops),
-            "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "gyro", "loop", "heading")},
+            "factors": {k: sum(e.kind == k for e in edges) for k in ("match", "odom", "gyro", "loop", "heading", "motion")},
+            "stretches": result.stretches, "consistency": result.consistency,
             "heading": result.heading_stats,
             "recoveries": int(result.recoveries), "duration_s": result.duration_s,
             "seconds": dict(result.timings), "realtime_factor": result.realtime_factor,

@@ -1,5 +1,8 @@
-"""Scans into one SLAM, each with the wheel odometry at its stamp (what `kosmap build` and `kosmap slam --source
-kos` feed it; mapping/runtime/slamproc.py runs the same feed in a process of its own)."""
+"""The one way scans reach SLAM, for `kosmap slam` (mapping/slam.py) and `kosmap build` (mapping/build/) alike:
+the wheel odometry at a scan's stamp (`odom_at`), the laser's mount (`laser_mount`), which laser scans are used
+(`laser_period`) and when a scan is handed over (`SlamFeed`). The same log gives both commands the same inputs in
+the same order, so the same trajectory.
+"""
 
 from __future__ import annotations
 
@@ -9,11 +12,55 @@ from collections import deque
 import numpy as np
 
 from kosmap.frontend import se2
+from kosmap.frontend.camera import lookup_static
 from kosmap.frontend.odometry import WheelOdometry, scan_points_base, scan_to_points
-from kosmap.frontend.records import Odometry
+from kosmap.frontend.records import Odometry, OdometrySamples, Scan
 
 ODOM_WAIT_S = 1.0  # a scan waits at most this long (log time) for the wheel odometry sample after it
 ODOM_STALE_S = 0.5  # a scan farther than this from every odometry sample gets no odometry prior
+# Two samples farther apart than this are not interpolated between: the robot's motion across a gap in the
+# odometry is unknown (a straight line through it bent the map), so a scan there is matched without odometry.
+ODOM_MAX_GAP_S = 2 * ODOM_STALE_S
+
+
+def odom_at(wheel: WheelOdometry, stamp: int) -> np.ndarray | None:
+    """The wheel odometry at `stamp`: interpolated between the samples around it when they are at most
+    ODOM_MAX_GAP_S apart (the later within ODOM_WAIT_S); else held at the nearer sample within ODOM_STALE_S; else
+    None."""
+    t, p = wheel.t, wheel.p
+    wait, stale, gap = int(ODOM_WAIT_S * 1e9), int(ODOM_STALE_S * 1e9), int(ODOM_MAX_GAP_S * 1e9)
+    i = bisect_left(t, stamp)
+    after = i < len(t) and t[i] - stamp <= wait
+    if after and i > 0 and t[i] - t[i - 1] <= gap:
+        a = (stamp - t[i - 1]) / (t[i] - t[i - 1]) if t[i] > t[i - 1] else 1.0
+        q = (1.0 - a) * np.array(p[i - 1]) + a * np.array(p[i])
+    elif after and t[i] - stamp <= stale and (i == 0 or stamp - t[i - 1] > t[i] - stamp):
+        q = np.array(p[i])
+    elif i > 0 and stamp - t[i - 1] <= stale:
+        q = np.array(p[i - 1])
+    else:
+        return None
+    q[2] = float(se2.wrap(q[2]))
+    return q
+
+
+def laser_mount(statics, base: str, frame: str) -> tuple[np.ndarray, str | None]:
+    """The laser's planar pose (x, y, yaw) in the robot's frame from the static transforms: `base` (the wheel
+    odometry's child frame) ← `frame`, else base_link ← `frame`; else at the origin, with a warning to say so."""
+    tf = lookup_static(statics, base, frame) or lookup_static(statics, "base_link", frame)
+    if tf is not None:
+        return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float), None
+    if frame.lstrip("/") in (base, "base_link", ""):
+        return np.zeros(3), None
+    return np.zeros(3), f"no static transform from {base} to {frame}; the laser is taken as mounted at {base}"
+
+
+def laser_period(rate_hz: float, n_scans: int, duration_s: float) -> int:
+    """Nanoseconds between the laser scans SLAM uses ([build] laser_rate; 0 = every scan): a laser averaging no
+    more than 1.2× the rate keeps every scan (bursty stamps would lose some)."""
+    if rate_hz <= 0 or (duration_s > 0 and n_scans / duration_s <= 1.2 * rate_hz):
+        return 0
+    return int(1e9 / rate_hz)
 
 
 class SlamFeed:
@@ -30,6 +77,7 @@ class SlamFeed:
         self.use_odom = use_odom
         self.use_imu = use_imu and slam.gcfg.imu  # the log's gyro: scans also wait for its samples
         slam.expect_imu = self.use_imu
+        slam.health.expect_odom = use_odom
         self.wheel = WheelOdometry()
         self.pending: deque[tuple[int, np.ndarray]] = deque()
         self.added = 0
@@ -68,6 +116,16 @@ class SlamFeed:
         de-skewed with the odometry's twist (frontend/deskew.py) when there is one."""
         self.pending.append((int(stamp_ns), points, deskew))
 
+    def push_laser(self, scan: Scan, mount: np.ndarray) -> None:
+        """A laser scan mounted at `mount` (x, y, yaw in base_link): de-skewed when taken beam by beam and the
+        config asks for it, else its end points as they are."""
+        o = self.slam.ocfg
+        if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
+            self.push(scan.stamp_ns, None, (scan, mount, o.min_range, o.max_range))
+        else:
+            self.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), mount, o.min_range,
+                                                      o.max_range))
+
     def advance(self, now_ns: int | None) -> None:
         """Hand SLAM every pending scan whose odometry is settled (`now_ns` None: the log has ended)."""
         wait = int(ODOM_WAIT_S * 1e9)
@@ -78,7 +136,7 @@ class SlamFeed:
             if now_ns is not None and not settled and now_ns - stamp <= wait:
                 return
             self.pending.popleft()
-            odom = self._odom_at(stamp) if self.use_odom else None
+            odom = odom_at(self.wheel, stamp) if self.use_odom else None
             if self.use_odom and odom is None:
                 self.no_odom += 1
             if deskew is not None:
@@ -95,28 +153,23 @@ class SlamFeed:
         self.advance(None)
 
     def result(self):
-        """SLAM's solved run (backend/slam.py SlamResult), None when no scan reached it; KosmapError when it failed."""
+        """SLAM's solved run (mapping/slam.py SlamResult), None when no scan reached it; KosmapError when it failed."""
         return self.slam.finish() if self.slam.stamps else None
 
     def close(self) -> None:
         """Nothing to release in this process (mapping/runtime/slamproc.py's feed stops its process)."""
 
-    def _odom_at(self, stamp: int) -> np.ndarray | None:
-        """Interpolated between the samples around `stamp` (the later within ODOM_WAIT_S); else held at the
-        nearer sample within ODOM_STALE_S; else None."""
-        t, p = self.wheel.t, self.wheel.p
-        wait, stale = int(ODOM_WAIT_S * 1e9), int(ODOM_STALE_S * 1e9)
-        i = bisect_left(t, stamp)
-        after = i < len(t) and t[i] - stamp <= wait
-        if after and i > 0:
-            a = (stamp - t[i - 1]) / (t[i] - t[i - 1]) if t[i] > t[i - 1] else 1.0
-            q = (1.0 - a) * np.array(p[i - 1]) + a * np.array(p[i])
-        elif after and t[i] - stamp <= stale:
-            q = np.array(p[i])
-        elif i > 0 and stamp - t[i - 1] <= stale:
-            q = np.array(p[i - 1])
-        else:
-            return None
-        q[2] = float(se2.wrap(q[2]))
-        return q
 
+def no_odom_warning(no_odom: int, stretches: dict, what: str) -> str | None:
+    """The line for the `no_odom` scans that got no wheel odometry, unless the run's stretch warning already names
+    them (`stretches`: SlamResult.stretches, backend/slamhealth.py)."""
+    if not no_odom or stretches.get("no_odometry_s"):
+        return None
+    return f"{no_odom} {what} scan(s) had no wheel odometry within {ODOM_STALE_S} s: matched without it"
+
+
+def odometry_columns(rec: Odometry | OdometrySamples) -> tuple[np.ndarray, ...]:
+    """(stamps ns, x, y, yaw) of an OdometrySamples, or of one Odometry record as columns of one."""
+    if isinstance(rec, OdometrySamples):
+        return rec.stamps_ns, rec.x, rec.y, rec.yaw
+    return np.array([rec.stamp_ns], np.int64), np.array([rec.x]), np.array([rec.y]), np.array([rec.yaw])

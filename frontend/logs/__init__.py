@@ -14,9 +14,15 @@ BAG_MAGIC = b"#ROSBAG V2.0\n"
 __all__ = ["open_log", "LogReader", "LogInfo", "TopicInfo", "DetectedTopics", "TopicsConfig", "detect_topics"]
 
 
-def open_log(path: str | Path) -> LogReader:
-    """Open an MCAP, ROS 1 bag or CARMEN log by its content (not its name); LogError says what is wrong."""
-    p = Path(path)
+def open_log(path: str | Path, on_damage: str = "skip") -> LogReader:
+    """Open an MCAP, ROS 1 bag or CARMEN log by its content (not its name); LogError says what is wrong.
+    `on_damage` ([topics] on_damage): what a read does with a damaged chunk ("skip", "read" or "fail")."""
+    log = _open(Path(path))
+    log.on_damage = on_damage
+    return log
+
+
+def _open(p: Path) -> LogReader:
     if not p.exists():
         raise LogError(f"{p} does not exist; give the path of a log (.mcap, .bag or .clf)")
     if p.is_dir():

@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from kosmap.frontend.logs.convert import imu_problem, imu_samples_problems
+from kosmap.frontend.logs.validate import RecordGuard
 from kosmap.frontend.records import Imu, ImuSamples, Record
 
 
@@ -58,6 +59,8 @@ class LogReader(ABC):
         self.warnings: list[str] = []
         self._bad_imu: dict[str, int] = {}  # per topic: IMU samples skipped for non-finite values
         self._bad_msgs: dict[str, int] = {}  # per topic: messages skipped because their bytes do not decode
+        self._guard = RecordGuard(self.path.name, self._warn)  # read-time checks of every record (validate.py)
+        self.on_damage = "skip"  # a damaged chunk: "skip" it, "read" it as it is (a CRC mismatch), or "fail"
 
     @abstractmethod
     def info(self) -> LogInfo:
@@ -77,7 +80,8 @@ class LogReader(ABC):
 
     def _usable(self, rec):
         """The record, or None (with one warning per topic) for an IMU sample with non-finite values; of an
-        ImuSamples, the usable samples (None when none is)."""
+        ImuSamples, the usable samples (None when none is). Every other record passes the read-time checks of
+        frontend/logs/validate.py (skipped when impossible, odometry jumps bridged)."""
         if isinstance(rec, ImuSamples):
             bad = imu_samples_problems(rec)
             if bad is None:
@@ -92,7 +96,8 @@ class LogReader(ABC):
             if why is not None:
                 self._bad_sample(rec.topic, why, rec.stamp_ns)
                 return None
-        return rec
+            return rec
+        return self._guard.check(rec)
 
     def _bad_sample(self, topic: str, why: str, stamp_ns: int) -> None:
         bad = self._bad_imu

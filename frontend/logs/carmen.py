@@ -15,6 +15,7 @@ import numpy as np
 from kosmap.frontend.errors import LogError
 from kosmap.frontend.logs import topics as T
 from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo, reorder
+from kosmap.frontend.logs.validate import MAX_BEAMS, MAX_STAMP_NS
 from kosmap.frontend.records import Odometry, Scan
 
 SCAN_TOPIC, ODOM_TOPIC = "/scan", "/odom"
@@ -30,7 +31,39 @@ def looks_like_carmen(head: bytes) -> bool:
 
 
 def _ns(t: str) -> int:
-    return int(round(float(t) * 1e9))
+    """A CARMEN time (s) in ns; ValueError for one no clock gives (not finite, before the epoch, past 2116)."""
+    v = float(t)
+    if not 0.0 <= v < MAX_STAMP_NS * 1e-9:  # (also False for NaN)
+        raise ValueError(f"a time stamp of {t}")
+    return int(round(v * 1e9))
+
+
+def _count(field: str, what: str) -> int:
+    """A beam or remission count: ValueError unless 0..MAX_BEAMS."""
+    n = int(field)
+    if not 0 <= n <= MAX_BEAMS:
+        raise ValueError(f"{what} count of {n}")
+    return n
+
+
+def _need(f: list, n: int, what: str) -> None:
+    if len(f) < n:
+        raise ValueError(f"{len(f)} fields where {what} has at least {n}")
+
+
+def _floats(fields: list, what: str) -> tuple[float, ...]:
+    """Finite numbers (a pose, an angle); ValueError names `what` when one is not."""
+    v = tuple(float(x) for x in fields)
+    if not all(map(math.isfinite, v)):
+        raise ValueError(f"a non-finite {what}")
+    return v
+
+
+def _parse_odom(f: list) -> tuple[int, float, float, float]:
+    """ODOM x y theta tv rv accel timestamp hostname logger_timestamp → (stamp, x, y, theta)."""
+    _need(f, 8, "an ODOM line")
+    x, y, th = _floats(f[1:4], "odometry pose")
+    return _ns(f[7]), x, y, th
 
 
 class CarmenLog(LogReader):
@@ -42,6 +75,11 @@ class CarmenLog(LogReader):
         with open(self.path, "rb") as f:
             for line in f:
                 key = line.split(b" ", 1)[0]
+                if key == b"ODOM":  # only a well-formed ODOM line means the log has odometry of its own
+                    try:
+                        _parse_odom(line.decode("ascii", errors="replace").split())
+                    except (ValueError, IndexError):
+                        continue
                 if key in counts:
                     counts[key] += 1
         self._counts = counts
@@ -50,58 +88,65 @@ class CarmenLog(LogReader):
         if not any(counts.values()):
             raise LogError(f"{self.path.name} has no FLASER, ROBOTLASER1 or ODOM lines; it is not a CARMEN laser log")
 
-    def _parse(self, line: str, lineno: int) -> list[tuple[int, int, object]]:
+    def _parse(self, line: str) -> list[tuple[int, int, object]]:
+        """A line's records; ValueError (saying what is wrong) or IndexError for a malformed line."""
         f = line.split()
         kind = f[0]
         if kind == "FLASER":
-            n = int(f[1])
+            n = _count(f[1], "a beam")
+            _need(f, 9 + n, f"a FLASER line of {n} beams")
+            if n < 2:
+                raise ValueError(f"a beam count of {n}")
             r = np.array(f[2:2 + n], dtype=np.float32)
-            ox, oy, oth = (float(v) for v in f[5 + n:8 + n])
+            ox, oy, oth = _floats(f[5 + n:8 + n], "odometry pose")
             t = _ns(f[8 + n])
-            inc = math.pi / (n - 1) if n > 1 else 0.0
-            out = [(t, 0, Scan(t, r, -math.pi / 2, inc, 0.1, NO_RETURN, "base_link", SCAN_TOPIC))]
+            out = [(t, 0, Scan(t, r, -math.pi / 2, math.pi / (n - 1), 0.1, NO_RETURN, "base_link", SCAN_TOPIC))]
             if self._odom_from_laser:
                 out.append((t, 1, Odometry(t, ox, oy, oth, "odom", "base_link", ODOM_TOPIC)))
             return out
         if kind == "ROBOTLASER1":
-            start, _fov, res, maxr = (float(v) for v in f[2:6])
-            n = int(f[8])
-            r = np.array(f[9:9 + n], dtype=np.float32)
-            m = int(f[9 + n])
+            _need(f, 10, "a ROBOTLASER1 line")
+            start, _fov, res, maxr = _floats(f[2:6], "beam angle or range")
+            n = _count(f[8], "a beam")
+            _need(f, 10 + n, f"a ROBOTLASER1 line of {n} beams")
+            m = _count(f[9 + n], "a remission")
             rest = f[10 + n + m:]
-            rx, ry, rth = (float(v) for v in rest[3:6])
+            _need(rest, 12, "the end of a ROBOTLASER1 line")
+            if n < 1 or (n > 1 and res == 0):
+                raise ValueError(f"{n} beams {res:g} rad apart")
+            r = np.array(f[9:9 + n], dtype=np.float32)
+            rx, ry, rth = _floats(rest[3:6], "odometry pose")
             t = _ns(rest[11])
             out = [(t, 0, Scan(t, r, start, res, 0.0, min(maxr, NO_RETURN), "base_link", SCAN_TOPIC))]
             if self._odom_from_laser:
                 out.append((t, 1, Odometry(t, rx, ry, rth, "odom", "base_link", ODOM_TOPIC)))
             return out
         if kind == "ODOM":
-            x, y, th = (float(v) for v in f[1:4])
-            t = _ns(f[7])
+            t, x, y, th = _parse_odom(f)
             return [(t, 1, Odometry(t, x, y, th, "odom", "base_link", ODOM_TOPIC))]
         return []
 
     def _lines(self, topics: set[str] | None) -> Iterator[tuple[int, int, object]]:
-        bad = 0
+        bad, first_bad, why = 0, 0, ""
         seq = 0
         with open(self.path, encoding="ascii", errors="replace") as f:
             for lineno, line in enumerate(f, 1):
                 if not line.startswith(("FLASER", "ROBOTLASER1", "ODOM")):
                     continue
                 try:
-                    items = self._parse(line, lineno)
-                except (ValueError, IndexError):
+                    items = self._parse(line)
+                except (ValueError, IndexError, OverflowError) as e:
                     bad += 1
                     if bad == 1:
-                        first_bad = lineno
+                        first_bad, why = lineno, str(e) or "too few fields"
                     continue
                 for t, _, rec in items:
                     if topics is None or rec.topic in topics:
                         seq += 1
                         yield t, seq, rec
         if bad:
-            self._warn(f"{self.path.name}: skipped {bad} malformed line(s), the first at line {first_bad}; "
-                                 f"the log may be truncated or edited")
+            self._warn(f"{self.path.name}: skipped {bad} malformed line(s), the first at line {first_bad} ({why}); "
+                       f"the log may be truncated or edited")
 
     def info(self) -> LogInfo:
         c = self._counts
@@ -119,4 +164,7 @@ class CarmenLog(LogReader):
 
     def read(self, topics: Iterable[str] | None = None) -> Iterator:
         wanted = None if topics is None else set(topics)
-        yield from reorder(self._lines(wanted), window_ns=2_000_000_000)
+        for rec in reorder(self._lines(wanted), window_ns=2_000_000_000):
+            rec = self._usable(rec)  # the read-time checks every reader applies (frontend/logs/validate.py)
+            if rec is not None:
+                yield rec

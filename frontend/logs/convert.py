@@ -77,10 +77,7 @@ def to_record(msg, msgtype: str, topic: str):
     if msgtype == T.CAMERA_INFO:
         K = np.asarray(getattr(msg, "k", None) if hasattr(msg, "k") else msg.K, dtype=float).reshape(3, 3)
         D = np.asarray(getattr(msg, "d", None) if hasattr(msg, "d") else msg.D, dtype=float)
-        t = stamp_ns(msg.header.stamp)
-        if K[0, 0] <= 0 or K[1, 1] <= 0 or msg.width <= 0 or msg.height <= 0:
-            raise LogError(f"camera info on {_where(topic, t)} has no intrinsics (fx={K[0, 0]}, fy={K[1, 1]}, "
-                           f"{msg.width}×{msg.height}); give the camera model in the config or fix the driver's calibration")
+        t = stamp_ns(msg.header.stamp)  # (unusable intrinsics are skipped with a warning: logs/validate.py)
         return CameraModel(int(msg.width), int(msg.height), K, D, msg.distortion_model, msg.header.frame_id, topic, t)
     if msgtype == T.TF:
         tfs = tuple(Transform(m.header.frame_id.lstrip("/"), m.child_frame_id.lstrip("/"),

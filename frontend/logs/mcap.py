@@ -14,11 +14,12 @@ import os
 import struct
 from collections.abc import Iterable, Iterator
 
-import lz4.frame
-import zstandard
+import zlib
+
 from mcap.exceptions import McapError
-from mcap.reader import NonSeekingReader, make_reader
-from mcap.records import Message
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Message, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.serde import SerdeError
 from rosbags.typesys import get_types_from_msg
 from zstandard import ZstdError
@@ -29,6 +30,7 @@ from kosmap.frontend.logs.cdrfast import BATCH_DECODERS as _FAST_BATCH
 from kosmap.frontend.logs.cdrfast import DECODERS as _FAST
 from kosmap.frontend.logs.base import LogInfo, LogReader, TopicInfo, normalize_type, reorder
 from kosmap.frontend.logs.convert import to_record, typestore
+from kosmap.frontend.logs.inflate import ChunkDamage, inflate
 from kosmap.frontend.logs.readahead import read_ahead
 
 _CAMERA_INFO = _T.CAMERA_INFO
@@ -47,8 +49,9 @@ class McapLog(LogReader):
         self.truncated = False
         self._cut_said = False  # the truncation warning is given once (other warnings may come before it)
         self._damage: Exception | None = None  # what stopped a linear read
+        self._bad_chunks = 0  # chunks found damaged (CRC, decompression, records): skipped or read per `on_damage`
         try:
-            self._summary = make_reader(self._file).get_summary()
+            self._summary = make_reader(_Bounded(self._file)).get_summary()
         except _DAMAGE:
             self._summary = None
         if self._summary is None or not self._summary.chunk_indexes and not self._summary.statistics:
@@ -118,24 +121,81 @@ class McapLog(LogReader):
         return rec
 
     def _linear(self, topics) -> Iterator[tuple]:
-        """Messages in file order from a stream without an index; stops, with a warning, at damage."""
+        """Messages in file order from a stream without an index; a damaged chunk is handled as `on_damage` says,
+        damage between chunks stops the read with a warning. The file is read through `_Bounded`, and chunks are
+        decompressed here (`_chunk_data`), so that no length or size field allocates more than the file holds."""
         self._file.seek(0)
         n = 0
         last = 0
+        wanted = None if topics is None else set(topics)
+        schemas: dict[int, Schema] = {}
+        channels: dict[int, Channel] = {}
         # mcap's own log_time_order here would load the whole file: sort with a bounded window instead.
-        stream = NonSeekingReader(self._file, validate_crcs=True).iter_messages(topics=topics, log_time_order=False)
         try:
-            for seq, item in enumerate(stream):
-                n += 1
-                last = max(last, item[2].log_time)
-                yield item[2].log_time, seq, item
-        except _DAMAGE as e:
+            for record in StreamReader(_Bounded(self._file), emit_chunks=True).records:
+                if isinstance(record, Chunk):
+                    inner = self._linear_chunk(record)
+                else:
+                    inner = [record]
+                for r in inner:
+                    if isinstance(r, Schema):
+                        schemas[r.id] = r
+                    elif isinstance(r, Channel):
+                        channels[r.id] = r
+                    elif isinstance(r, Message):
+                        ch = channels.get(r.channel_id)
+                        if ch is None or (wanted is not None and ch.topic not in wanted):
+                            continue
+                        n += 1
+                        last = max(last, r.log_time)
+                        yield r.log_time, n, (schemas.get(ch.schema_id), ch, r)
+        except (*_DAMAGE, RuntimeError) as e:  # (lz4 raises RuntimeError)
             self.truncated = True
             self._damage = e
         if self.truncated and not self._cut_said:
             self._cut_said = True
             self._warn(f"{self.path.name} is truncated: read {n} messages up to t={last * 1e-9:.3f} s before "
                                  f"the damage; re-record or repair it (`mcap recover`) to get the rest")
+
+    def _linear_chunk(self, chunk: Chunk) -> list:
+        """A chunk's records (mcap's breakup_chunk on the data `_chunk_data` checked), or [] when damaged and skipped."""
+        def records(verify: bool) -> list:
+            data = _chunk_data(chunk.compression, chunk.data, chunk.uncompressed_size,
+                               chunk.uncompressed_crc if verify else 0)
+            return breakup_chunk(dataclasses.replace(chunk, compression="", data=data))
+
+        try:
+            return records(True)
+        except _ChunkFault as e:
+            if not self._chunk_damage(None, chunk.message_start_time, chunk.message_end_time, e):
+                return []
+            try:
+                return records(False)
+            except (_ChunkFault, *_DAMAGE):
+                return []
+        except _DAMAGE as e:  # a record inside the chunk that does not parse
+            self._chunk_damage(None, chunk.message_start_time, chunk.message_end_time, _ChunkFault(str(e), False))
+            return []
+
+    def _chunk_damage(self, pos: int | None, start_ns: int, end_ns: int, fault: _ChunkFault) -> bool:
+        """A damaged chunk, as `on_damage` says: "fail" raises LogError, else one warning with its time range each
+        (the first few) and True when it is to be read as it is ("read"; a CRC mismatch only: a chunk that does not
+        decompress or parse has nothing to read)."""
+        self._bad_chunks += 1
+        at = f" at byte {pos}" if pos is not None else ""
+        span = f"messages from t={start_ns * 1e-9:.3f} s to t={end_ns * 1e-9:.3f} s"
+        what = f"the chunk{at} ({span}) is damaged ({fault})"
+        if self.on_damage == "fail":
+            raise LogError(f"{self.path.name}: {what}; --set topics.on_damage=skip maps without it, =read reads it "
+                           f"as it is")
+        read = self.on_damage == "read" and fault.crc
+        if self._bad_chunks <= 5:
+            self._warn(f"{self.path.name}: {what}; its messages are {'read as they are' if read else 'skipped'} "
+                       f"(--set topics.on_damage=skip|read|fail): re-copy the log, or check it with `mcap doctor`")
+        else:
+            self.warnings[:] = [w for w in self.warnings if not w.startswith(f"{self.path.name}: in all, ")]
+            self._warn(f"{self.path.name}: in all, {self._bad_chunks} damaged chunks")
+        return read
 
     def _messages(self, topics=None, batch: bool = False) -> Iterator[tuple]:
         if self._summary is None:
@@ -153,8 +213,8 @@ class McapLog(LogReader):
         # messages beside mcap's current chunk. The thread seeks, so each read has its own file handle. Not
         # log_time_order=False: mcap's file-order queue reads every chunk before the first message (all in memory).
         fh = open(self.path, "rb")
-        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched), size=_nbytes, batch=512 << 10,
-                           depth=2)
+        ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched, self._chunk_damage), size=_nbytes,
+                           batch=512 << 10, depth=2)
         self._ahead.append(ahead)
         try:
             yield from ahead
@@ -252,15 +312,19 @@ def _chunks_in_sequence(chunk_indexes) -> bool:
     return True
 
 
-def _in_log_time_order(fh, summary, topics, batched: frozenset = frozenset()) -> Iterator[tuple]:
+def _in_log_time_order(fh, summary, topics, batched: frozenset = frozenset(), on_damage=None) -> Iterator[tuple]:
     """(schema, channel, message) of an indexed MCAP's chunks in log-time order, as mcap's
     `iter_messages(topics, log_time_order=True)` yields them (ties: chunk offset, then position in the chunk).
     A chunk's messages on a channel in `batched` come as one `_Batch`, in log-time order, in the place of the first.
+    A damaged chunk (beyond the file's end, CRC mismatch, does not decompress or parse) goes to
+    `on_damage(pos, start_ns, end_ns, fault)`, which says whether to read it anyway (default: skipped).
 
     The same heap of chunks and messages, keyed by plain tuples: mcap's wraps each message in an object compared
     by Python methods. Reading the 1-minute office log (27002 messages, zstd included) took 3.80 CPU s through mcap's
     and 2.85 s through this one, in the same order."""
+    on_damage = on_damage or (lambda *_: False)
     wanted = None if topics is None else set(topics)
+    size = os.fstat(fh.fileno()).st_size
     heap = []
     for ci in summary.chunk_indexes:  # chunks that may hold a wanted topic (mcap's _chunks_matching_topics)
         if wanted is None or not ci.message_index_offsets or any(
@@ -269,15 +333,13 @@ def _in_log_time_order(fh, summary, topics, batched: frozenset = frozenset()) ->
     heapq.heapify(heap)
     take = {cid: (None if ch.schema_id == 0 else summary.schemas[ch.schema_id], ch)  # (KeyError: damage, as mcap's)
             for cid, ch in summary.channels.items() if wanted is None or ch.topic in wanted}
-    unzstd = zstandard.ZstdDecompressor()
     while heap:
         log_time, offset, index, item = heapq.heappop(heap)
         if index >= 0:
             yield item
             continue
-        fh.seek(offset, io.SEEK_SET)
         batches: dict[int, list[tuple[int, int, Message]]] = {}
-        for i, rec in _chunk_messages(fh.read(item.chunk_length), summary.channels, take, unzstd):
+        for i, rec in _checked_chunk(fh, size, item, summary.channels, take, on_damage):
             if rec.channel_id in batched:
                 batches.setdefault(rec.channel_id, []).append((rec.log_time, i, rec))
                 continue
@@ -287,20 +349,95 @@ def _in_log_time_order(fh, summary, topics, batched: frozenset = frozenset()) ->
             heapq.heappush(heap, (msgs[0][0], offset, msgs[0][1], (*take[cid], _Batch([m for _, _, m in msgs]))))
 
 
+def _checked_chunk(fh, size: int, ci, channels: dict, take: dict, on_damage) -> list[tuple[int, Message]]:
+    """The messages of the chunk a ChunkIndex points at; a damaged chunk as `on_damage` says (skipped: [])."""
+    pos = ci.chunk_start_offset
+    if not 0 < pos < size or ci.chunk_length > size - pos:  # (a damaged index may claim 2^60 bytes: never read)
+        on_damage(pos, ci.message_start_time, ci.message_end_time,
+                  _ChunkFault(f"its index says {ci.chunk_length} bytes at byte {pos}, the file has {size}", False))
+        return []
+    fh.seek(pos, io.SEEK_SET)
+    buf = fh.read(ci.chunk_length)
+    out: list[tuple[int, Message]] = []
+    try:
+        out.extend(_chunk_messages(buf, channels, take))
+        return out
+    except _ChunkFault as e:
+        fault = e
+    except (McapError, struct.error, UnicodeDecodeError) as e:
+        fault = _ChunkFault(str(e), False)
+    if not on_damage(pos, ci.message_start_time, ci.message_end_time, fault):
+        return []
+    out.clear()  # read as it is (a CRC mismatch): every message that parses
+    try:
+        out.extend(_chunk_messages(buf, channels, take, verify=False))
+    except (_ChunkFault, McapError, struct.error, UnicodeDecodeError):
+        pass
+    return out
+
+
+class _ChunkFault(Exception):
+    """A damaged chunk, in words; `crc`: only its CRC disagrees (its data decompress and may be read)."""
+
+    def __init__(self, text: str, crc: bool) -> None:
+        super().__init__(text)
+        self.crc = crc
+
+
+class _Bounded:
+    """A file whose read(n) never asks for more than the bytes left: a damaged length field (2^60) then reads
+    short, which mcap reports as the file's end, instead of allocating what the field claims."""
+
+    def __init__(self, fh) -> None:
+        self._fh = fh
+        self._size = os.fstat(fh.fileno()).st_size
+
+    def read(self, n: int = -1) -> bytes:
+        left = max(0, self._size - self._fh.tell())
+        return self._fh.read(left if n is None or n < 0 else min(n, left))
+
+    def seek(self, offset: int, whence: int = io.SEEK_SET) -> int:
+        return self._fh.seek(offset, whence)
+
+    def tell(self) -> int:
+        return self._fh.tell()
+
+    def seekable(self) -> bool:
+        return True
+
+    def readable(self) -> bool:
+        return True
+
+
 _CHUNK_HEAD = struct.Struct("<BQQQQII")  # opcode, record length, message start / end time, uncompressed size, crc, len(compression)
 _RECORD = struct.Struct("<BQ")  # opcode, length
 _MESSAGE = struct.Struct("<HIQQ")  # channel id, sequence, log time, publish time
 _VIEW_OVER = 65536  # a message larger than this (a depth image) is a view into its chunk, not a copy
 
 
-def _chunk_messages(buf: bytes, channels: dict, take: dict, unzstd) -> Iterator[tuple[int, Message]]:
+def _chunk_data(compression: str, raw, size: int, crc: int) -> bytes:
+    """A chunk's records, decompressed within its stated size (frontend/logs/inflate.py) and checked against its
+    CRC-32 (mcap spec: uncompressed_crc, 0 when not written); _ChunkFault when either fails."""
+    try:
+        data = inflate(compression, raw, size)
+    except ChunkDamage as e:
+        raise _ChunkFault(str(e), False) from e
+    if len(data) != size:
+        raise _ChunkFault(f"it holds {len(data)} bytes, its header says {size}", False)
+    if crc and zlib.crc32(data) != crc:
+        raise _ChunkFault(f"its CRC is {zlib.crc32(data):08x}, its header says {crc:08x}", True)
+    return data
+
+
+def _chunk_messages(buf: bytes, channels: dict, take: dict, verify: bool = True) -> Iterator[tuple[int, Message]]:
     """(position in the chunk, Message) of one Chunk record's messages on the channels in `take` (of the summary's
-    `channels`: a message on any other is damage). McapError for a chunk that does not parse.
+    `channels`: a message on any other is damage). McapError for a chunk that does not parse, _ChunkFault for one
+    that does not decompress or (`verify`) whose CRC disagrees.
 
     Written here instead of mcap's Chunk.read + breakup_chunk, which read through a BytesIO field by field and
     copy every message's bytes: on a 30 Hz Kinect log that was 7.8 GB of copies per 10 minutes and, beside zstd,
     most of the reading thread's time (mcap spec: Chunk 0x06 holds Message 0x05 records)."""
-    op, _, _, _, size, _, n = _CHUNK_HEAD.unpack_from(buf, 0)
+    op, _, _, _, size, crc, n = _CHUNK_HEAD.unpack_from(buf, 0)
     if op != 0x06:
         raise McapError(f"expected a chunk record (opcode 0x06), found 0x{op:02x}")
     pos = _CHUNK_HEAD.size
@@ -310,20 +447,7 @@ def _chunk_messages(buf: bytes, channels: dict, take: dict, unzstd) -> Iterator[
     raw = memoryview(buf)[pos:pos + rlen]
     if len(raw) != rlen:
         raise McapError(f"chunk ends after {len(raw)} of its {rlen} bytes")
-    if compression == "zstd":
-        stated = zstandard.frame_content_size(raw)  # a damaged frame header may claim any size: not allocated
-        if stated >= 0 and stated != size:
-            raise McapError(f"a chunk's zstd frame holds {stated} bytes, the chunk header says {size}")
-        data = unzstd.decompress(raw, max_output_size=size)
-    elif compression == "lz4":
-        try:
-            data = lz4.frame.decompress(raw)
-        except RuntimeError as e:  # lz4's error for a damaged frame
-            raise McapError(f"a chunk's lz4 frame does not decompress ({e})") from e
-    elif compression == "":
-        data = raw
-    else:
-        raise McapError(f"chunk compression {compression!r} is not supported (zstd, lz4 or none)")
+    data = _chunk_data(compression, raw, size, crc if verify else 0)
     view = memoryview(data)
     pos, end, i = 0, len(data), 0
     while pos < end:

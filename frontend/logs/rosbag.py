@@ -232,6 +232,9 @@ class Ros1Bag(LogReader):
         self._bad_chunks += 1
         self.truncated = True  # (the summary's flag: what was read is not the whole log)
         when = f"messages from t={span[0] * 1e-9:.3f} s to t={span[1] * 1e-9:.3f} s" if span else "its messages"
+        if self.on_damage == "fail":  # ("read": a bag's chunk has no CRC of its own, so damage is what cannot be read)
+            raise LogError(f"{self.path.name}: the chunk at byte {pos} ({when}) is damaged ({detail}); "
+                           f"--set topics.on_damage=skip maps without it")
         if self._bad_chunks <= _CHUNK_WARNINGS:
             self._warn(f"{self.path.name}: the chunk at byte {pos} is damaged ({detail}); {when} are skipped and the "
                        f"rest is read: re-copy the bag, or check it with `rosbag check`")

@@ -34,6 +34,9 @@ class TopicsConfig(StageConfig):
     odom: str = param("", doc="wheel odometry topic (nav_msgs/Odometry)")
     imu: str = param("", doc="IMU topic (sensor_msgs/Imu); \"none\" ignores the log's IMU")
     ground_truth: str = param("", doc="ground-truth pose topic (nav_msgs/Odometry), for scoring only")
+    on_damage: str = param("skip", choices=("skip", "read", "fail"),
+                           doc="a damaged chunk of the log (CRC mismatch, does not decompress): skip it with a warning, "
+                               "read it as it is, or fail")
 
 
 @dataclass

@@ -21,6 +21,6 @@ usual, marked partial in metrics.json and the report.
 """
 
 from kosmap.mapping.build.readpass import Progress
-from kosmap.mapping.build.run import BUILD_FILES, BuildResult, build
+from kosmap.mapping.build.run import BUILD_FILES, BuildInterrupted, BuildResult, build
 
-__all__ = ["BUILD_FILES", "BuildResult", "Progress", "build"]
+__all__ = ["BUILD_FILES", "BuildInterrupted", "BuildResult", "Progress", "build"]

@@ -34,6 +34,7 @@ from kosmap.mapping.build.spill import Spill
 from kosmap.mapping.config import Config
 from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun
 from kosmap.mapping.runtime.framepool import FramePool
+from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns
 
 STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
                  "planes", "points", "fspf_ms", "kos_ms")
@@ -106,20 +107,6 @@ class ReadResult:
     statics: list[Transforms]
 
 
-def odometry_columns(rec: Odometry | OdometrySamples) -> tuple[np.ndarray, ...]:
-    """(stamps ns, x, y, yaw) of an OdometrySamples, or of one Odometry record as columns of one."""
-    if isinstance(rec, OdometrySamples):
-        return rec.stamps_ns, rec.x, rec.y, rec.yaw
-    return np.array([rec.stamp_ns], np.int64), np.array([rec.x]), np.array([rec.y]), np.array([rec.yaw])
-
-
-def planar(tf: Transform | None) -> np.ndarray:
-    """(x, y, yaw) of a transform; zeros for None."""
-    if tf is None:
-        return np.zeros(3)
-    return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float)
-
-
 @contextmanager
 def _stop_on_sigint(stop: Callable[[], None]) -> Iterator[None]:
     """Ctrl-C calls `stop` (finish what was read) and restores the handler (a second Ctrl-C aborts)."""
@@ -167,11 +154,8 @@ class ReadPass:
         self.last_fused: int | None = None
         self.next_cloud: int | None = None
         self.stop = self.partial = False
-        bcfg = self.bcfg
-        self.laser_period = int(1e9 / bcfg.laser_rate) if bcfg.laser_rate > 0 else 0
-        det, duration = src.det, src.duration
-        if det.scan and duration > 0 and src.counts.get(det.scan, 0) / duration <= 1.2 * bcfg.laser_rate:
-            self.laser_period = 0  # a laser no faster than the limit keeps every scan (bursty stamps would lose some)
+        bcfg, det = self.bcfg, src.det
+        self.laser_period = laser_period(bcfg.laser_rate, src.counts.get(det.scan, 0), src.duration) if det.scan else 0
         self.cloud_period = int(bcfg.mcap_planes_period * 1e9)
         self.run = ScanRun()
         self.total = src.expected_units(bcfg)
@@ -189,7 +173,7 @@ class ReadPass:
                                     min_period_ns=min_period, fuse=False)
         t_begin = time.perf_counter()
         cpu0 = time.process_time()
-        lg = open_log(log)
+        lg = open_log(log, self.cfg.topics.on_damage)
         try:
             with open(csv_path, "w", newline="") as csv_fh, _stop_on_sigint(self._request_stop):
                 self.writer = csv.writer(csv_fh)
@@ -333,13 +317,9 @@ class ReadPass:
         last = self.last_laser
         if last is not None and scan.stamp_ns - last < self.laser_period - 1_000_000:
             return
-        if self.laser_mount is None:
-            self.laser_mount = planar(lookup_static(self.statics, self.base, scan.frame_id) or
-                                      lookup_static(self.statics, "base_link", scan.frame_id))
-            if not self.statics or lookup_static(self.statics, self.base, scan.frame_id) is None:
-                if scan.frame_id.lstrip("/") not in (self.base, "base_link", ""):
-                    self.warnings.append(f"no static transform from {self.base} to {scan.frame_id}; "
-                                         f"the laser is taken as mounted at {self.base}")
+        if self.laser_mount is None:  # the same lookup as `kosmap slam` (mapping/slamfeed.py)
+            self.laser_mount, w = laser_mount(self.statics, self.base, scan.frame_id)
+            self.warnings.extend([w] if w else [])
         spill = self.spill
         if not spill.laser.add(scan.stamp_ns, scan.ranges):
             return
@@ -349,12 +329,7 @@ class ReadPass:
                                 "topic": scan.topic, "time_increment": scan.time_increment}
         self.last_laser = scan.stamp_ns
         self.laser_kept += 1
-        o = self.laser_feed.slam.ocfg
-        if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
-            self.laser_feed.push(scan.stamp_ns, None, (scan, self.laser_mount, o.min_range, o.max_range))
-        else:
-            self.laser_feed.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(),
-                                                                 self.laser_mount, o.min_range, o.max_range))
+        self.laser_feed.push_laser(scan, self.laser_mount)
         if not self.det.depth:
             self.tick()
 

@@ -26,13 +26,19 @@ from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.mapio import read_blueprint
 from kosmap.mapping.report import frames_figure, trajectory_figure, write_report
 from kosmap.mapping.runtime.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
-from kosmap.mapping.runtime.outdir import SPILL_PREFIX, check_out, claim, discard, record
+from kosmap.mapping.runtime.outdir import SPILL_PREFIX, check_out, claim, commit, discard, holds_complete_run
 from kosmap.mapping.runtime.slamproc import RemoteFeed
 
 OUTPUTS = ("metrics.json", "report.html", "report.md", "map_*.png", "map_*.pgm", "map_*.yaml", "overlay_*.png",
            "trajectory_*.tum", "ground_truth.tum", "odometry.tum", "stats.csv", "kosmap.mcap", "summary.png",
            "frames.png", "trajectories.png")  # what a build writes into its folder (removed first when present)
 BUILD_FILES = OUTPUTS + ("config.toml",)  # and its effective config: mapping/runtime/outdir.py tells ours from the user's
+
+
+class BuildInterrupted(KosmapError):
+    """Ctrl-C stopped a build whose folder holds a complete earlier build: that one is kept, not the partial one."""
+
+    exit_code = 130
 
 
 @dataclass
@@ -74,13 +80,16 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     src = inspect_log(log, cfg)
     kos_cfgs = kos_slam_configs(cfg)
     bp_files = () if blueprint is None else (Path(blueprint), *(Path(blueprint).with_suffix(x) for x in (".png", ".pgm")))
-    # the previous build's files go; a file of the user's, or one this run reads, under one of our names stops here
-    claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
-    spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
+    # a file of the user's, or one this run reads, under one of our names stops here; the run writes into a staging
+    # folder whose files replace the previous build's only when it completes (mapping/runtime/outdir.py)
+    stage = claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
+    final_out, out = out, stage.dir
     warnings: list[str] = []
     pool: FramePool | None = None
     feeds: dict = {}
+    spill_dir = None
     try:
+        spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
         files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
         # One set of worker processes for the whole build, forked now while this process is small: the frames in
         # pass 1, then the grid and comparison jobs. Workers forked after pass 1 counted every page of this process
@@ -90,6 +99,9 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         if src.has_depth:
             pool = FramePool(cfg.fspf, cfg.depth, cfg.kos, workers, cfg.build.in_flight or None)
         read = ReadPass(src, cfg, spill_dir, warnings, pool, feeds.get("kos"), feeds.get("laser"), on_progress).read(log)
+        if read.partial and holds_complete_run(final_out, "build"):
+            raise BuildInterrupted(f"interrupted after {read.log_s:.1f} s of log; the complete build already in "
+                                   f"{final_out} is kept (run again to replace it)")
         rss = {"after_read": peak_rss_mb()}
         say(("interrupted: mapping what was read, " if read.partial else "")
             + f"{read.frames} depth frames, {read.laser_kept} laser scans read in {read.seconds:.1f} s")
@@ -114,28 +126,35 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         rss["after_maps_and_compare"] = peak_rss_mb()
         metrics = build_metrics(log, src, read, results, maps, comparisons, overlays, cfg, blueprint, workers, warnings,
                                 Timing(read.seconds, slam_finish_s, maps_s, compare_s))
+        metrics = _renamed(metrics, str(out), str(final_out))  # the files' paths as they will be once in place
         if blueprint_scale is not None:  # a plain-image blueprint: the report's trajectory figure reads it again
             metrics["sources"]["blueprint_scale"] = blueprint_scale
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,
                              "peak_rss_mb_slam": {n: f.peak_rss_mb for n, f in feeds.items() if isinstance(f, RemoteFeed)}}
         write_metrics_and_report(out, metrics, files, read, t_start, cpu_start, figures if report else None)
-        files["manifest"] = record(out, BUILD_FILES)
-        return BuildResult(out, json_safe(metrics), files)
-    except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: no half-written result left looking valid
-        discard(out, BUILD_FILES)
+    except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: the previous build stays as it was
+        discard(stage)
         raise
     finally:
         for feed in feeds.values():
             feed.close()
         if pool is not None:
             pool.close(cancel=True)
-        shutil.rmtree(spill_dir, ignore_errors=True)
+        if spill_dir is not None:
+            shutil.rmtree(spill_dir, ignore_errors=True)
+    try:
+        files = {k: final_out / p.name for k, p in files.items()}
+        files["manifest"] = commit(stage, partial=read.partial)
+    except BaseException:
+        discard(stage)
+        raise
+    return BuildResult(final_out, json_safe(metrics), files)
 
 
 def inspect_log(log: Path, cfg: Config) -> LogSources:
     """The log's topics, counts and duration from its index; a log with nothing to map, or a [build] slam_scan that
     is no KOS scan of the config, is refused here."""
-    with open_log(log) as lg:
+    with open_log(log, cfg.topics.on_damage) as lg:
         info = lg.info()
         det = detect_topics(info.types(), cfg.topics)
         src = LogSources(det, {t: info.count(t) for t in info.types()}, float(info.duration))
@@ -171,6 +190,19 @@ def draw_figures(out: Path, src: LogSources, blueprint, blueprint_scale) -> tupl
     traj_png = trajectory_figure(out, {"sources": {"blueprint": None if blueprint is None else str(blueprint),
                                                    "blueprint_scale": blueprint_scale}})
     return frames_png, traj_png
+
+
+def _renamed(doc, old: str, new: str):
+    """`doc` (metrics: dicts, lists, strings, paths) with each path under folder `old` under folder `new` instead."""
+    if isinstance(doc, dict):
+        return {k: _renamed(v, old, new) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [_renamed(v, old, new) for v in doc]
+    if isinstance(doc, Path):
+        return Path(_renamed(str(doc), old, new))
+    if isinstance(doc, str) and (doc == old or doc.startswith(old + os.sep)):
+        return new + doc[len(old):]
+    return doc
 
 
 def _write_json(path: Path, doc: dict) -> Path:

@@ -14,7 +14,7 @@ from kosmap.frontend.odometry import OdometryConfig
 from kosmap.mapping.build.readpass import LogSources
 from kosmap.mapping.config import Config
 from kosmap.mapping.runtime.slamproc import RemoteFeed, SlamProcessError
-from kosmap.mapping.slamfeed import ODOM_STALE_S, SlamFeed
+from kosmap.mapping.slamfeed import SlamFeed, no_odom_warning
 
 
 def kos_slam_configs(cfg: Config) -> tuple[OdometryConfig, GraphConfig]:
@@ -49,10 +49,8 @@ def solve_slams(feeds: dict, log_name: str, warnings: list[str]) -> dict[str, Sl
         except KosmapError as e:
             warnings.append(f"{name} SLAM produced no trajectory: {e}")
             continue
-        finally:
-            if feed.no_odom:
-                warnings.append(f"{feed.no_odom} {'KOS' if name == 'kos' else name} scan(s) had no wheel odometry "
-                                f"within {ODOM_STALE_S} s: matched without it")
+        w = no_odom_warning(feed.no_odom, res.stretches if res is not None else {}, "KOS" if name == "kos" else name)
+        warnings.extend([w] if w else [])
         if res is None:
             continue
         results[name] = res

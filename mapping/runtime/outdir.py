@@ -1,9 +1,12 @@
-"""Output folders: checked before any work, and a run's own files told apart from the user's.
+"""Output folders: checked before any work; a run's files staged apart and put in place only when it completes.
 
-A run (build, slam, scan, compare) replaces the files of the previous run of the same command in its folder, and
-only those: each run lists what it wrote in a manifest (MANIFEST); a file that it would write under the same name
-but that no such run wrote there is the user's (or another command's), and the run refuses to start rather than
-delete or overwrite it.
+A run (build, slam, scan, compare) writes into a hidden staging folder inside its output folder; only when it has
+written everything are its files moved into the output folder, replacing those of the previous run of the same
+command, and only those: each run lists what it wrote in a manifest (MANIFEST); a file that it would write under
+the same name but that no such run wrote there is the user's (or another command's), and the run refuses to start
+rather than delete or overwrite it. A run that fails, is interrupted or killed before that point leaves the
+previous run's files as they were (and no folder it created); the moves themselves are journalled in the manifest,
+so that a run killed outright (SIGKILL) in the middle of them is undone by the next run in that folder.
 """
 
 from __future__ import annotations
@@ -11,14 +14,21 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import signal
+import tempfile
+import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from dataclasses import dataclass
 from pathlib import Path
 
 from kosmap.frontend.errors import KosmapError
 
 MANIFEST = ".kosmap-outputs"
-SPILL_PREFIX = ".kosmap-spill-"  # a build's temporary folder inside its output folder (removed when it ends)
+SPILL_PREFIX = ".kosmap-spill-"  # a build's temporary folder (inside its staging folder)
+STAGE_PREFIX = ".kosmap-staging-"  # a run's files until it completes: .kosmap-staging-<pid>-<random>
+BACKUP_PREFIX = ".kosmap-previous-"  # the previous run's files while the new ones are moved in
+_DEFERRED = (signal.SIGINT, signal.SIGTERM)  # held while the files are moved: a run is replaced whole or not at all
 
 
 class OutputError(KosmapError):
@@ -45,18 +55,29 @@ def check_out(out: str | Path, option: str = "--out") -> Path:
     return out
 
 
+def _manifest(out: Path) -> dict | None:
+    """The folder's manifest; None when it has none. ValueError/OSError: damaged or unreadable."""
+    try:
+        doc = json.loads((out / MANIFEST).read_text())
+    except FileNotFoundError:
+        return None
+    if not isinstance(doc, dict):
+        raise ValueError("not a JSON object")
+    return doc
+
+
 def previous_outputs(out: Path, command: str = "build") -> set[str] | None:
     """Names of the files the previous run of `command` wrote in `out` (its manifest); {"*"} (every file matching
-    its names counts) for a run that was killed while running (its manifest says so) or a build from before
-    manifests (metrics.json says "kosmap": "build"); None: no such run's folder. OutputError: another command's."""
+    its names counts) for a run of an earlier kosmap killed while writing in place (its manifest says so) or a build
+    from before manifests (metrics.json says "kosmap": "build"); None: no such run's folder. OutputError: another
+    command's."""
     try:
-        listed = json.loads((out / MANIFEST).read_text())
-        if listed.get("kosmap", "build") != command:
-            raise OutputError(f"--out {out} holds the results of `kosmap {listed.get('kosmap')}`; give `kosmap "
-                              f"{command}` a folder of its own")
-        return {"*"} if listed.get("in_progress") else set(listed["files"])
-    except FileNotFoundError:
-        pass
+        listed = _manifest(out)
+        if listed is not None:
+            if listed.get("kosmap", "build") != command:
+                raise OutputError(f"--out {out} holds the results of `kosmap {listed.get('kosmap')}`; give `kosmap "
+                                  f"{command}` a folder of its own")
+            return {"*"} if listed.get("in_progress") else set(listed["files"])
     except (OSError, ValueError, KeyError, TypeError):
         return None  # a damaged manifest proves nothing: what it would list is treated as the user's
     try:
@@ -66,70 +87,210 @@ def previous_outputs(out: Path, command: str = "build") -> set[str] | None:
     return {"*"} if legacy else None
 
 
-def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> None:
-    """Make `out` ready for a run of `command` that writes files matching `patterns`: the previous run's files
-    there are removed (they must not mix with this run's, nor survive its failure), and so are leftovers of a killed
-    build (its temporary folder, `.partial` files); a matching file no such run wrote, or one this run reads
-    (`inputs`: the log, --config, a blueprint), stops it, untouched. The manifest then says a run is in progress,
-    so that the files of one killed outright are the next run's to replace."""
+def holds_complete_run(out: Path, command: str = "build") -> bool:
+    """Whether `out` holds the files of a run of `command` that completed (not one interrupted and marked partial)."""
+    try:
+        doc = _manifest(out)
+    except (OSError, ValueError):
+        return False
+    return (doc is not None and doc.get("kosmap", "build") == command and bool(doc.get("files"))
+            and not doc.get("partial") and not doc.get("in_progress"))
+
+
+@dataclass
+class Stage:
+    """A run's staging folder (`dir`, inside `out`) and what putting its files in place will replace."""
+
+    out: Path
+    dir: Path
+    patterns: tuple[str, ...]
+    command: str
+    replaces: list[str]  # the previous run's files (names in `out`)
+    previous: str | None  # the previous manifest's text, put back when a run stopped while moving its files is undone
+    made: Path | None  # the outermost folder this run created for `out` (removed again if the run fails)
+
+
+def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> Stage:
+    """Make a staging folder in `out` for a run of `command` that writes files matching `patterns`. Nothing in
+    `out` is replaced yet; a matching file no such run wrote, or one this run reads (`inputs`: the log, --config, a
+    blueprint), stops it here. Leftovers of killed runs are cleared first: their staging folders (of processes
+    that are gone), and a run killed while moving its files in is undone."""
+    made = None
+    p = out.absolute()
+    while not p.exists():
+        made, p = p, p.parent
     out.mkdir(parents=True, exist_ok=True)
-    present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
-    here = out.resolve()
-    for x in inputs:
-        if x is not None and Path(x).resolve().parent == here and Path(x).name in present:
-            raise OutputError(f"{x} is read by this run but is one of the files it writes in --out {out}; copy it "
-                              f"elsewhere or give another folder")
-    prev = previous_outputs(out, command) if present else None
-    ours = set(present) if prev == {"*"} else (prev or set())
-    theirs = [n for n in present if n not in ours]
-    if theirs:
-        more = f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
-        them = "it" if len(theirs) == 1 else "them"
-        raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which `kosmap {command}` would overwrite "
-                          f"but did not write (another kosmap command's folder? each needs its own); move {them} or "
-                          f"give another folder")
-    _write_manifest(out, {"kosmap": command, "in_progress": True})
-    for name in present:
-        (out / name).unlink(missing_ok=True)
-    for p in out.glob(SPILL_PREFIX + "*"):
-        shutil.rmtree(p, ignore_errors=True)
-    for pat in patterns:
-        for p in out.glob(pat + ".partial"):
-            p.unlink(missing_ok=True)
+    try:
+        _recover(out)
+        present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
+        here = out.resolve()
+        for x in inputs:
+            if x is not None and Path(x).resolve().parent == here and Path(x).name in present:
+                raise OutputError(f"{x} is read by this run but is one of the files it writes in --out {out}; copy "
+                                  f"it elsewhere or give another folder")
+        prev = previous_outputs(out, command) if present else None
+        ours = set(present) if prev == {"*"} else (prev or set())
+        theirs = [n for n in present if n not in ours]
+        if theirs:
+            more = f" and {len(theirs) - 3} more" if len(theirs) > 3 else ""
+            them = "it" if len(theirs) == 1 else "them"
+            raise OutputError(f"--out {out} holds {', '.join(theirs[:3])}{more}, which `kosmap {command}` would "
+                              f"overwrite but did not write (another kosmap command's folder? each needs its own); "
+                              f"move {them} or give another folder")
+        try:
+            previous = (out / MANIFEST).read_text()
+        except (OSError, ValueError):
+            previous = None
+        stage = Path(tempfile.mkdtemp(prefix=f"{STAGE_PREFIX}{os.getpid()}-", dir=out))
+    except BaseException:
+        _remove_made(out, made)
+        raise
+    return Stage(out, stage, tuple(patterns), command, present, previous, made)
+
+
+def commit(stage: Stage, partial: bool = False) -> Path:
+    """Put the staged files in place of the previous run's: the old ones are moved aside, the new ones in, the
+    manifest written (the moment the new run replaces the old), the old ones deleted. SIGINT and SIGTERM wait until
+    it is done; one that came meanwhile undoes it (the run was stopped: the previous files stay). Returns the
+    manifest. `partial`: an interrupted run's outputs (a later run never keeps them in preference to its own)."""
+    out = stage.out
+    new = sorted({p.name for pat in stage.patterns for p in stage.dir.glob(pat) if p.is_file()})
+    backup = stage.dir.with_name(BACKUP_PREFIX + stage.dir.name.removeprefix(STAGE_PREFIX))
+    final = {"kosmap": stage.command, "files": new, **({"partial": True} if partial else {})}
+    with _signals_held() as held:
+        backup.mkdir()
+        _write_manifest(out, {"kosmap": stage.command, "committing": stage.dir.name, "backup": backup.name,
+                              "files": new, "replaces": stage.replaces, "previous": stage.previous})
+        for n in stage.replaces:
+            if (out / n).exists() or (out / n).is_symlink():
+                os.replace(out / n, backup / n)
+        for n in new:
+            os.replace(stage.dir / n, out / n)
+        if held:  # stopped while moving: the previous run's files go back
+            _undo(out, _manifest(out))
+        else:
+            _write_manifest(out, final)
+        shutil.rmtree(backup, ignore_errors=True)
+        shutil.rmtree(stage.dir, ignore_errors=True)
+    return out / MANIFEST
+
+
+def discard(stage: Stage) -> None:
+    """Remove what a failed or interrupted run wrote (its staging folder) and the folders it created for `out`
+    (when nothing else is in them): the previous run's files are as they were."""
+    shutil.rmtree(stage.dir, ignore_errors=True)
+    _remove_made(stage.out, stage.made)
 
 
 @contextmanager
-def writing(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> Iterator[None]:
-    """A run of `command` writing into `out`: claimed first, its files listed when the body ends, removed when it
-    fails or is interrupted."""
-    claim(out, patterns, inputs, command)
+def writing(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> Iterator[Path]:
+    """A run of `command` writing its files into the staging folder this yields; they replace the previous run's
+    in `out` when the body ends, and are removed when it fails or is interrupted."""
+    stage = claim(out, patterns, inputs, command)
     try:
-        yield
+        yield stage.dir
+        commit(stage)
     except BaseException:
-        discard(out, patterns)
+        discard(stage)
         raise
-    record(out, patterns, command)
 
 
-def discard(out: Path, patterns: tuple[str, ...]) -> None:
-    """Remove what a failed run wrote (after `claim`, every file matching `patterns` is this run's): no
-    half-written result is left looking valid."""
-    for pat in patterns:
-        for p in out.glob(pat):
+@contextmanager
+def _signals_held() -> Iterator[list]:
+    """SIGINT and SIGTERM during the block are noted (the list it yields) and handled when it ends, by the handlers
+    in place before it (which stop the run)."""
+    held: list[int] = []
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        old = {s: signal.signal(s, lambda n, _f: held.append(n)) for s in _DEFERRED}
+    try:
+        yield held
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+        for s in dict.fromkeys(held):
+            signal.raise_signal(s)
+
+
+def _recover(out: Path) -> None:
+    """Clear what killed runs left in `out`: undo one killed while moving its files in (its manifest says
+    "committing"), remove the staging folders of processes that are gone, and the leftovers of builds of earlier
+    kosmap versions that wrote in place (a spill folder, `.partial` files)."""
+    try:
+        doc = _manifest(out)
+    except (OSError, ValueError):
+        doc = None
+    if doc is not None and doc.get("committing"):
+        _undo(out, doc)
+    for p in list(out.glob(STAGE_PREFIX + "*")) + list(out.glob(BACKUP_PREFIX + "*")):
+        if not _alive(p.name):
+            shutil.rmtree(p, ignore_errors=True)
+    for p in out.glob(SPILL_PREFIX + "*"):
+        shutil.rmtree(p, ignore_errors=True)
+    if doc is not None and doc.get("in_progress"):
+        for p in out.glob("*.partial"):
             p.unlink(missing_ok=True)
-        for p in out.glob(pat + ".partial"):
-            p.unlink(missing_ok=True)
-    (out / MANIFEST).unlink(missing_ok=True)
 
 
-def record(out: Path, patterns: tuple[str, ...], command: str = "build") -> Path:
-    """List the files of this run (every match of `patterns`) in the manifest, written whole or not at all."""
-    names = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file()})
-    return _write_manifest(out, {"kosmap": command, "files": names})
+def _undo(out: Path, doc: dict) -> None:
+    """Put back the previous run's files of an interrupted commit (journalled in `doc`) and its manifest."""
+    backup = out / doc["backup"]
+    old = set(doc.get("replaces", []))
+    for n in doc.get("files", []):
+        if n not in old:
+            (out / n).unlink(missing_ok=True)  # a new file: no older one of that name to keep
+    if backup.is_dir():
+        for p in backup.iterdir():
+            os.replace(p, out / p.name)
+    prev = doc.get("previous")
+    if isinstance(prev, str):
+        _write_text(out / MANIFEST, prev)
+    else:
+        (out / MANIFEST).unlink(missing_ok=True)
+    shutil.rmtree(backup, ignore_errors=True)
+    shutil.rmtree(out / doc["committing"], ignore_errors=True)
+
+
+def _alive(name: str) -> bool:
+    """Whether the process that made a staging or backup folder (its pid is in the name) still runs."""
+    try:
+        pid = int(name.split("-")[3])  # .kosmap-staging-<pid>-…
+    except (IndexError, ValueError):
+        return False
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _remove_made(out: Path, made: Path | None) -> None:
+    """Remove the folders a run created for `out`, innermost first, as long as they are empty."""
+    if made is None:
+        return
+    p = out.absolute()
+    top = made.absolute()
+    while True:
+        try:
+            p.rmdir()
+        except OSError:
+            return
+        if p == top:
+            return
+        p = p.parent
 
 
 def _write_manifest(out: Path, doc: dict) -> Path:
-    tmp = out / (MANIFEST + ".partial")
-    tmp.write_text(json.dumps(doc, indent=1) + "\n")
-    os.replace(tmp, out / MANIFEST)
-    return out / MANIFEST
+    return _write_text(out / MANIFEST, json.dumps(doc, indent=1) + "\n")
+
+
+def _write_text(path: Path, text: str) -> Path:
+    """`path` written whole or not at all."""
+    tmp = path.with_name(path.name + ".partial")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+    return path

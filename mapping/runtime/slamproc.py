@@ -157,6 +157,9 @@ class RemoteFeed:
     def push(self, stamp_ns: int, points, deskew: tuple | None = None) -> None:
         self._call("push", int(stamp_ns), points, deskew)
 
+    def push_laser(self, scan, mount) -> None:
+        self._call("push_laser", scan, mount)
+
     def advance(self, now_ns: int | None) -> None:
         if now_ns is None:  # the end of the log: never merged (an object call)
             self._call("advance", None)

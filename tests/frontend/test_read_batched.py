@@ -30,7 +30,7 @@ def _imu(rng, i: int, frame: str = "imu_link", topic: str = "/imu") -> Imu:
 
 
 def _odom(rng, i: int, topic: str = "/odom", child: str = "base_link") -> Odometry:
-    return Odometry(T0 + i * 20_000_000 + int(rng.integers(0, 1000)), *rng.normal(0, 30, 2), float(rng.uniform(-3.2, 3.2)),
+    return Odometry(T0 + i * 20_000_000 + int(rng.integers(0, 1000)), *rng.normal(0, 0.1, 2), float(rng.uniform(-3.2, 3.2)),
                     "odom", child, topic, float(rng.normal()))
 
 

@@ -1,5 +1,5 @@
-"""Output folders: refused before any work when unusable; a build replaces its own earlier files and never the user's;
-a failed, killed or terminated build leaves no result looking valid."""
+"""Output folders: refused before any work when unusable; a build replaces its own earlier files and never the user's,
+and only when it completes: a failed, killed or terminated build leaves the previous one as it was."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 
 from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping.config import load_config
-from kosmap.mapping.runtime.outdir import MANIFEST, OutputError, check_out, claim
 from kosmap.mapping.build import BUILD_FILES, build
+from kosmap.mapping.runtime.outdir import MANIFEST, OutputError, check_out, claim, commit, discard
 from tests.frontend.synthetic_log import copy_log
 from kosmap.tools.cli import main
 
@@ -58,25 +58,34 @@ def test_claim_refuses_to_replace_files_no_build_wrote(tmp_path):
     assert _snapshot(tmp_path) == before
 
 
-def test_claim_removes_the_previous_builds_files_and_a_killed_builds_leftovers_only(tmp_path):
+def test_a_run_replaces_the_previous_builds_files_only_when_it_commits(tmp_path):
     for name in ("map_laser.png", "metrics.json", "report.md", "notes.txt", "map_mine.png"):
         (tmp_path / name).write_text(name)
     (tmp_path / MANIFEST).write_text(json.dumps({"kosmap": "build", "files": ["map_laser.png", "metrics.json", "report.md"]}))
-    (tmp_path / ".kosmap-spill-x1y2").mkdir()
+    (tmp_path / ".kosmap-spill-x1y2").mkdir()  # a killed build of an earlier version's leftovers
     (tmp_path / ".kosmap-spill-x1y2" / "scans.bin").write_bytes(b"x")
-    (tmp_path / "stats.csv.partial").write_text("half")
+    (tmp_path / ".kosmap-staging-999999999-abc").mkdir()  # a staging folder of a process that is gone
     with pytest.raises(OutputError, match="holds map_mine.png,"):
         claim(tmp_path, BUILD_FILES)  # map_mine.png matches map_*.png but the manifest does not list it
     (tmp_path / "map_mine.png").rename(tmp_path / "mine.png")
-    claim(tmp_path, BUILD_FILES)
-    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "mine.png", "notes.txt"]  # (saying: running)
+    before = _snapshot(tmp_path)
+    stage = claim(tmp_path, BUILD_FILES)
+    assert _snapshot(tmp_path) == before  # nothing replaced yet
+    assert sorted(p.name for p in tmp_path.iterdir() if p.is_dir()) == [stage.dir.name]  # leftovers gone
+    (stage.dir / "metrics.json").write_text("new")
+    (stage.dir / "map_kos_obstacle.png").write_text("new map")
+    commit(stage)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "map_kos_obstacle.png", "metrics.json", "mine.png",
+                                                          "notes.txt"]  # map_laser.png, report.md: the old build's
+    assert (tmp_path / "metrics.json").read_text() == "new" and (tmp_path / "mine.png").read_text() == "map_mine.png"
+    assert json.loads((tmp_path / MANIFEST).read_text()) == {"kosmap": "build", "files": ["map_kos_obstacle.png", "metrics.json"]}
 
 
 def test_a_folder_of_a_build_before_manifests_is_still_a_builds(tmp_path):
     (tmp_path / "metrics.json").write_text(json.dumps({"kosmap": "build"}))
     (tmp_path / "trajectory_kos.tum").write_text("")
     (tmp_path / "notes.txt").write_text("mine")
-    claim(tmp_path, BUILD_FILES)
+    commit(claim(tmp_path, BUILD_FILES))  # a run that wrote nothing of those names: the old build's go
     assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "notes.txt"]
 
 
@@ -104,16 +113,20 @@ def test_a_build_replaces_its_own_files_keeps_the_users_and_refuses_to_overwrite
 
 
 @pytest.mark.slow
-def test_a_failed_build_leaves_nothing_that_looks_like_a_result(laser_log, tmp_path):
-    out = tmp_path / "out"
-    build(laser_log, out, load_config(None, SETS), workers=0)  # a good result first: the failed run replaces it
-
+def test_a_failed_build_leaves_the_previous_one_as_it_was_and_a_failed_first_one_no_folder(laser_log, tmp_path):
     def fail(_p):
         raise RuntimeError("disk on fire")
 
+    out = tmp_path / "new" / "out"
     with pytest.raises(RuntimeError, match="disk on fire"):
         build(laser_log, out, load_config(None, SETS), workers=0, on_progress=fail)
-    assert list(out.iterdir()) == []
+    assert list(tmp_path.iterdir()) == []  # neither --out nor the folder made for it
+    build(laser_log, out, load_config(None, SETS), workers=0)  # a good result
+    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
+    assert "map_laser.png" in before and MANIFEST in before
+    with pytest.raises(RuntimeError, match="disk on fire"):
+        build(laser_log, out, load_config(None, SETS), workers=0, on_progress=fail)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # byte for byte, and no staging folder left
 
 
 @pytest.mark.slow
@@ -157,10 +170,14 @@ def test_every_command_that_writes_a_folder_refuses_an_unusable_out_first(laser_
 
 def test_the_files_of_a_build_killed_outright_are_the_next_builds(tmp_path):
     (tmp_path / "notes.txt").write_text("mine")
-    claim(tmp_path, BUILD_FILES)  # a build starts: its manifest says it is running
-    for name in ("config.toml", "trajectory_kos.tum", "stats.csv"):  # … writes these, then SIGKILL
+    (tmp_path / MANIFEST).write_text(json.dumps({"kosmap": "build", "in_progress": True}))  # (as builds writing in
+    for name in ("config.toml", "trajectory_kos.tum", "stats.csv", "stats.csv.partial"):  # place left it)
         (tmp_path / name).write_text(name)
-    claim(tmp_path, BUILD_FILES)  # the next build takes them as a build's
+    stage = claim(tmp_path, BUILD_FILES)  # the next build takes them as a build's
+    assert not (tmp_path / "stats.csv.partial").exists()
+    commit(stage)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "notes.txt"]
+    discard(claim(tmp_path / "a" / "b", BUILD_FILES))  # a run that made its folder and failed: the folders go
     assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, "notes.txt"]
 
 

@@ -74,13 +74,14 @@ def test_scan_refuses_bad_levels(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_a_rerun_replaces_the_last_scans_files_and_a_stop_leaves_none(room_log, tmp_path, capsys, monkeypatch):
+def test_a_rerun_replaces_the_last_scans_files_and_a_stop_leaves_them_as_they_were(room_log, tmp_path, capsys, monkeypatch):
     out = tmp_path / "kos"
     assert main(["scan", str(room_log), "--out", str(out), "--figures", "3", "--limit", "9"]) == 0
     assert len(list(out.glob("kos_top_*.png"))) == 3
     assert main(["scan", str(room_log), "--out", str(out), "--figures", "1", "--limit", "9"]) == 0
     assert [p.name for p in out.glob("kos_top_*.png")] == ["kos_top_0.png"]  # not the first run's three
     capsys.readouterr()
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
 
     import kosmap.mapping.kosscan as kosscan
 
@@ -91,4 +92,4 @@ def test_a_rerun_replaces_the_last_scans_files_and_a_stop_leaves_none(room_log, 
     monkeypatch.setattr(kosscan, "kos_steps", stop)
     assert main(["scan", str(room_log), "--out", str(out), "--limit", "9"]) == 130
     assert "kosmap: interrupted" in capsys.readouterr().err
-    assert list(out.iterdir()) == []  # the earlier scan was replaced and this one wrote nothing that stays
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before  # the earlier scan's, byte for byte

@@ -14,7 +14,7 @@ from kosmap.tools import options as O
 
 def print_headline(metrics: dict, out: Path) -> None:
     """The report's place and its headline numbers (what `kosmap build` and `kosmap demo` print)."""
-    from kosmap.mapping.report import headline, run_warnings
+    from kosmap.mapping.report import consistency_text, headline, run_warnings
 
     h = headline(metrics)
     if h["partial"]:
@@ -28,6 +28,9 @@ def print_headline(metrics: dict, out: Path) -> None:
         print(f"  F1 at 0.10 m  {labels[k]:<{width}}  {f1:.3f}" + ("" if seen is None else f"   (walls seen: {seen:.3f})"))
     for k, ate in h["ate"].items():
         print(f"  ATE RMSE      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  {ate:.3f} m")
+    for k, s in metrics.get("slam", {}).items():  # without ground truth too
+        print(f"  consistency   {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  "
+              f"{consistency_text(s.get('consistency') or {})}")
     t = metrics["timing"]
     print(f"  {t['total_s']:.1f} s for {t['log_s']:.1f} s of log: {t['realtime_factor']:.1f}× real time")
     for w in run_warnings(metrics):  # the run's, and a map that saw no obstacle (a KOS level out of the camera's sight)

@@ -43,11 +43,11 @@ def run_compare(a_path: Path, b_path: Path | None, blueprint: Path | None, bluep
     import tomli_w
 
     inputs = (a_path, a_path.with_suffix(".png"), a_path.with_suffix(".pgm"), b_path, blueprint)
-    with writing(out, COMPARE_FILES, inputs=inputs, command="compare"):  # the last comparison's files go, not the user's
-        _atomic_write_bytes(out / "compare.json", (json.dumps(metrics, indent=2) + "\n").encode())
-        _atomic_write_bytes(out / "compare.md", md.encode())
-        write_png(overlay, out / "overlay.png")
-        _atomic_write_bytes(out / "config.toml", ("# kosmap effective configuration\n" + tomli_w.dumps(config_dict(cfg))).encode())
+    with writing(out, COMPARE_FILES, inputs=inputs, command="compare") as stage:  # replace the last comparison's
+        _atomic_write_bytes(stage / "compare.json", (json.dumps(metrics, indent=2) + "\n").encode())
+        _atomic_write_bytes(stage / "compare.md", md.encode())
+        write_png(overlay, stage / "overlay.png")
+        _atomic_write_bytes(stage / "config.toml", ("# kosmap effective configuration\n" + tomli_w.dumps(config_dict(cfg))).encode())
     return {"metrics": metrics, "markdown": md}
 
 

@@ -16,7 +16,7 @@ from kosmap.tools import options as O
 
 def log_summary(path: Path, cfg) -> dict:
     """Everything `info` prints, as a dict (also the --json output)."""
-    with open_log(path) as log:
+    with open_log(path, cfg.topics.on_damage) as log:
         info: LogInfo = log.info()
         det = detect_topics(info.types(), cfg.topics)
         if not det.depth and not det.scan:

@@ -99,7 +99,7 @@ def _log_frames(path: Path, cfg, ov: Override, every: int,
         log = ImageFolder(path, ov.camera_file, ov.depth_scale)
         ov = Override()
     else:
-        log = open_log(path)
+        log = open_log(path, cfg.topics.on_damage)
     info = log.info()
     det = detect_topics(info.types(), cfg.topics)
     if not det.depth:

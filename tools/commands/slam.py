@@ -42,12 +42,12 @@ def register(app: typer.Typer) -> None:
             from kosmap.backend.metrics import MetricsError
 
             raise MetricsError(f"relations file {relations} does not exist; give a Kümmerle .relations file")
-        with writing(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam"):
+        with writing(out, SLAM_FILES, inputs=(log, relations, ground_truth, config), command="slam") as stage:
             with seconds_bar("slam", "{task.fields[t]:.0f}/{task.total:.0f} s of log", quiet) as tick:
                 result = run_slam(log, cfg, source, progress=tick, keep_scans=not no_map, workers=workers)
             metrics = evaluate(result, relations, ground_truth)
             grid = None if no_map else build_map(result, cfg.grid)
-            paths = save_run(result, out, cfg, metrics, grid)
+            paths = save_run(result, stage, cfg, metrics, grid)  # moved into --out when complete
         if quiet:
             return
         t = result.timings
@@ -73,6 +73,9 @@ def register(app: typer.Typer) -> None:
             cal.append(f"building axes {hd['axis_deg']:+.2f}° (heading priors on {hd['priors']} of {run['keyframes']} keyframes)")
         if cal:
             print("estimated: " + ", ".join(cal))
+        from kosmap.mapping.report import consistency_text
+
+        print(f"self-consistency: {consistency_text(result.consistency)}")
         for w in result.warnings:
             print(f"warning: {w}", file=sys.stderr)
         names = [n for k, p in paths.items()  # map.yaml's image, map.pgm, is written beside it

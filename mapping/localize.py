@@ -1,0 +1,329 @@
+"""`kosmap localize`: where a robot was, scan by scan, in a prior map or a blueprint.
+
+Monte Carlo localization with KLD-sampling over the map's likelihood field (backend/mcl.py,
+backend/likelihood_field.py), augmented MCL's recovery from a lost or kidnapped pose, and each pose refined by the
+scan-to-map matcher (frontend/matcher.py's Gauss–Newton) once the filter has found it: the filter is robust and
+global, the matcher precise. The filter updates after `update_min_d` / `update_min_a` of motion as AMCL does; every
+scan gets a pose (the filter's moved by the odometry since, then refined).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from kosmap.backend import mcl
+from kosmap.backend.likelihood_field import MapField, map_field
+from kosmap.frontend import se2
+from kosmap.frontend.errors import KosmapError
+from kosmap.frontend.matcher import gauss_newton, inlier_fraction
+from kosmap.mapping.localize_config import LocalizeConfig
+
+SEARCHING, TRACKING, LOST = 0, 1, 2  # per-pose status: not found yet, found, lost after having been found
+STATUS_NAMES = ("searching", "tracking", "lost")
+
+
+class LocalizeError(KosmapError):
+    """Input `kosmap localize` cannot work with (a map without free space, an initial pose off it, ...)."""
+
+
+@dataclass
+class Snapshot:
+    """A subsample of the particles after one filter update (for Foxglove)."""
+
+    stamp_ns: int
+    particles: np.ndarray  # (n, 3) float32
+
+
+@dataclass
+class Stretch:
+    """A stretch of the log where the pose was lost; `end_s` is when it was found again (None: never)."""
+
+    start_s: float
+    end_s: float | None
+
+
+@dataclass
+class LocalizeResult:
+    """A pose per scan (base_link in the map frame) with the filter's confidence."""
+
+    stamps_ns: np.ndarray  # (S,)
+    poses: np.ndarray  # (S, 3): refined where tracking, else the filter's
+    filter_poses: np.ndarray  # (S, 3): the particle filter's mode moved by the odometry since its last update
+    spread_xy: np.ndarray  # (S,) m
+    spread_yaw: np.ndarray  # (S,) rad
+    score: np.ndarray  # (S,) mean matcher field value at the pose (1: every end point on a wall)
+    inliers: np.ndarray  # (S,) share of end points within σ_match of a wall
+    particles: np.ndarray  # (S,) particle count
+    ratio: np.ndarray  # (S,) augmented MCL's w_fast/w_slow
+    status: np.ndarray  # (S,) int8 SEARCHING / TRACKING / LOST
+    snapshots: list[Snapshot] = field(default_factory=list)
+    updates: int = 0
+    seconds: float = 0.0
+
+    @property
+    def stamps(self) -> np.ndarray:
+        return self.stamps_ns * 1e-9
+
+    @property
+    def t0(self) -> float:
+        return float(self.stamps[0]) if len(self.stamps_ns) else 0.0
+
+    def converged_s(self) -> float | None:
+        """Log seconds from the first scan to the filter's first claim of a pose."""
+        hit = np.flatnonzero(self.status == TRACKING)
+        return float(self.stamps[hit[0]] - self.t0) if len(hit) else None
+
+    def lost_stretches(self) -> list[Stretch]:
+        lost = self.status == LOST
+        out = []
+        i = 0
+        while i < len(lost):
+            if lost[i]:
+                j = i
+                while j < len(lost) and lost[j]:
+                    j += 1
+                out.append(Stretch(float(self.stamps[i] - self.t0),
+                                   float(self.stamps[j] - self.t0) if j < len(lost) else None))
+                i = j
+            else:
+                i += 1
+        return out
+
+
+def field_for(grid, cfg: LocalizeConfig, z_max: float) -> MapField:
+    """The map's likelihood fields; LocalizeError for a map with no free cell or no wall."""
+    if abs(grid.origin[2]) > 1e-9:
+        raise LocalizeError(f"the map's origin has a yaw of {math.degrees(grid.origin[2]):.1f}°; kosmap localize "
+                            f"takes maps whose origin yaw is 0 (rotate the image instead)")
+    f = map_field(grid.data, grid.resolution, grid.origin, cfg.sigma_hit, cfg.z_hit, cfg.z_rand, z_max, cfg.match_sigma,
+                  cfg.sigma_search)
+    if not f.free.any():
+        raise LocalizeError("the map has no free cell to localize in (free: below map_server's free_thresh); check "
+                            "its image and thresholds")
+    if not np.isfinite(f.distance).any() or float(f.distance.min()) > 0:
+        raise LocalizeError("the map has no occupied cell (no wall) to localize against; check its image and thresholds")
+    return f
+
+
+class _Filter:
+    """The particle set, its weights, augmented MCL's averages and the KLD resampling between updates."""
+
+    def __init__(self, f: MapField, cfg: LocalizeConfig, rng: np.random.Generator, initial: np.ndarray | None) -> None:
+        self.f, self.cfg, self.rng = f, cfg, rng
+        self.z_max = math.exp(-f.floor) * cfg.z_rand  # the floor is log(z_rand / z_max)
+        self.global_n = int(min(cfg.global_max_particles, max(cfg.min_particles, cfg.global_density * f.free_area)))
+        if initial is None:
+            self.parts = f.sample_free(self.global_n, rng)
+        else:  # AMCL's initial covariance: 0.5 m in x and y, π/12 in heading
+            n = cfg.max_particles
+            self.parts = initial + rng.normal(0, 1, (n, 3)) * np.array([0.5, 0.5, math.pi / 12])
+            self.parts[:, 2] = se2.wrap(self.parts[:, 2])
+        self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+        self.rec = mcl.Recovery(cfg.alpha_slow, cfg.alpha_fast)
+        self.updates = 0
+        self.found = False
+        self.tight = 0  # filter updates in a row with a tight set
+        self.lost_since = -1
+        self.alphas = tuple(float(a) for a in cfg.odom_alpha)
+        if len(self.alphas) != 4:
+            from kosmap.frontend.errors import ConfigError
+
+            raise ConfigError(f"config [localize] odom_alpha = {cfg.odom_alpha!r} must be four numbers (α1..α4)")
+
+    def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
+        self.parts = mcl.sample_motion_odometry(self.parts, u0, u1, self.alphas, self.rng)
+
+    def diffuse(self, dt: float) -> None:
+        c = self.cfg
+        self.parts = mcl.diffuse(self.parts, c.no_odom_sigma_xy * dt, math.radians(c.no_odom_sigma_yaw_deg) * dt, self.rng)
+
+    def measure(self, pts: np.ndarray) -> None:
+        c = self.cfg
+        beams = mcl.beam_subset(pts, c.max_beams)
+        through = math.log(c.z_through / self.z_max) if c.z_through > 0 else -math.inf
+        searching = not self.found or self.lost_since >= 0
+        ll = mcl.log_likelihoods(self.f, self.parts, beams, through, c.sigma_search if searching else c.sigma_hit,
+                                 searching)
+        q = np.exp(ll / max(len(beams), 1))  # −inf → 0: per-beam geometric mean likelihood of each particle
+        self.rec.update(float(np.sum(self.w * q)))
+        temper = min(1.0, c.effective_beams / max(len(beams), 1))
+        logw = np.log(np.maximum(self.w, 1e-300)) + temper * ll
+        self.w = mcl.normalize(logw)
+        self.updates += 1
+        lost = self.found and self.rec.ratio < c.lost_ratio
+        if self.updates % c.resample_interval == 0 or lost:
+            self.resample(lost)
+
+    def resample(self, lost: bool) -> None:
+        c = self.cfg
+        searching = not self.found or lost
+        n_max = self.global_n if searching else c.max_particles
+        parts = mcl.kld_resample(self.parts, self.w, self.rec.p_random, self.f, c.min_particles, n_max, c.kld_err,
+                                 c.kld_z, c.bin_xy, math.radians(c.bin_yaw_deg), self.rng)
+        if lost and (self.lost_since < 0 or self.updates - self.lost_since >= 10):
+            # lost: a global set beside the survivors (re-seeded every 10 updates while lost)
+            self.lost_since = self.updates
+            parts = np.concatenate((parts, self.f.sample_free(self.global_n, self.rng)))
+        self.parts = parts
+        self.w = np.full(len(parts), 1.0 / len(parts))
+
+
+def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | None = None,
+             progress=None) -> LocalizeResult:
+    """Localize every scan of `inp` (mapping/locinput.py LocalizationInput) in the map `f`."""
+    t_start = time.perf_counter()
+    rng = np.random.default_rng(cfg.seed)
+    flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float))
+    n = len(inp.stamps_ns)
+    out = {k: np.zeros(n) for k in ("sx", "sy", "score", "inl", "np", "ratio")}
+    poses = np.zeros((n, 3))
+    fposes = np.zeros((n, 3))
+    status = np.zeros(n, np.int8)
+    snaps: list[Snapshot] = []
+    min_a = math.radians(cfg.update_min_a_deg)
+    conv_yaw = math.radians(cfg.converged_yaw_deg)
+    est = mcl.estimate(flt.parts, flt.w)
+    u_last = inp.odom[0] if inp.has_odom else None
+    t_last = inp.stamps[0]
+    tracked: np.ndarray | None = None
+    for i in range(n):
+        pts = inp.points[i]
+        u = inp.odom[i] if inp.has_odom else None
+        if inp.has_odom:
+            d = se2.between(u_last, u)
+            update = i == 0 or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
+        else:
+            update = True
+        if update and len(pts) >= cfg.min_points:
+            if inp.has_odom:
+                flt.move(u_last, u)
+                u_last = u
+            else:
+                flt.diffuse(inp.stamps[i] - t_last)
+            t_last = inp.stamps[i]
+            flt.measure(pts)
+            est = mcl.estimate(flt.parts, flt.w)
+            if cfg.mcap_particles:
+                k = min(cfg.mcap_particles, len(flt.parts))
+                sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
+                snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
+        pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
+        tight = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        if update:
+            flt.tight = flt.tight + 1 if tight else 0
+        converged = tight and (flt.found or flt.tight >= cfg.converged_updates)
+        if converged:
+            flt.found = True
+            flt.lost_since = -1
+        status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
+        pose = pose_f
+        if converged and cfg.refine and len(pts) >= cfg.min_points:
+            pred, coarse = pose_f, True
+            if tracked is not None:
+                pt = se2.compose(tracked, se2.between(inp.odom[i - 1], u)) if inp.has_odom else tracked
+                gate_xy = max(cfg.refine_gate_sigmas * est.spread_xy, cfg.converged_xy)
+                gate_yaw = max(cfg.refine_gate_sigmas * est.spread_yaw, conv_yaw)
+                if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
+                    pred, coarse = pt, False
+            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse)
+            tracked = pose
+        else:
+            tracked = None
+        poses[i], fposes[i] = pose, pose_f
+        p64 = np.ascontiguousarray(pts, dtype=np.float64)
+        out["score"][i] = f_score(f, p64, pose)
+        out["inl"][i] = inlier_fraction(f.match, f.origin[0], f.origin[1], f.resolution, p64, pose, math.exp(-0.5)) if len(p64) else 0.0
+        out["sx"][i], out["sy"][i] = est.spread_xy, est.spread_yaw
+        out["np"][i], out["ratio"][i] = len(flt.parts), flt.rec.ratio
+        if progress is not None:
+            progress(float(inp.stamps[i] - inp.stamps[0]), inp.duration_s)
+    return LocalizeResult(inp.stamps_ns, poses, fposes, out["sx"], out["sy"], out["score"], out["inl"],
+                          out["np"].astype(int), out["ratio"], status, snaps, flt.updates, time.perf_counter() - t_start)
+
+
+def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The direction of travel between two odometry poses, or None when the robot turned in place."""
+    d = se2.between(a, b)
+    return d if math.hypot(d[0], d[1]) > 1e-3 else None
+
+
+def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True) -> np.ndarray:
+    """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: harder along the direction
+    of travel (the narrow scan's blind direction in a corridor) than across it. `coarse`: from the filter's pose,
+    coarse to fine (4σ, 2σ, σ); from the track's own prediction, which the odometry of one step hardly moves, fine
+    only (2σ, σ), so that furniture the map lacks has less pull."""
+    yaw = pred[2] + (math.atan2(step[1], step[0]) if step is not None else 0.0)
+    c, s = math.cos(yaw), math.sin(yaw)
+    along = cfg.refine_prior_along if step is not None else cfg.refine_prior_xy
+    r = np.array([[c, -s], [s, c]])
+    w = np.zeros((3, 3))
+    w[:2, :2] = r @ np.diag([along, cfg.refine_prior_xy]) @ r.T
+    w[2, 2] = cfg.refine_prior_yaw
+    p64 = np.ascontiguousarray(pts, dtype=np.float64)
+    pose = np.asarray(pred, float)
+    levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
+    for field, sigma in levels[0 if coarse else 1:]:
+        pose, _, _ = gauss_newton(field, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
+                                  w, 10, True, sigma)
+    return pose
+
+
+def f_score(f: MapField, pts: np.ndarray, pose: np.ndarray) -> float:
+    """Mean matcher field value of the end points at `pose`."""
+    from kosmap.frontend.matcher import mean_score
+
+    return float(mean_score(f.match, f.origin[0], f.origin[1], f.resolution, pts, np.asarray(pose, float))) if len(pts) else 0.0
+
+
+def load_map(path, scale: float | None = None):
+    """A map_server YAML (a build's map_*.yaml, any map_saver map) or a plain blueprint image with `scale` m/pixel."""
+    from pathlib import Path
+
+    from kosmap.mapping.mapio import read_blueprint, read_map_server
+
+    p = Path(path)
+    if p.suffix.lower() in (".yaml", ".yml"):
+        if scale is not None:
+            raise LocalizeError(f"{p} is a map_server YAML with its own resolution; drop --map-scale")
+        return read_map_server(p)
+    if scale is None and p.is_file():
+        raise LocalizeError(f"--map {p} is a plain image: give its scale in metres per pixel with --map-scale, or a "
+                            f"map_server .yaml that names it with its resolution")
+    return read_blueprint(p, scale)
+
+
+def parse_pose(text: str) -> np.ndarray:
+    """"x,y,yaw" (metres, metres, degrees) → (x, y, yaw in radians)."""
+    try:
+        v = [float(t) for t in text.split(",")]
+    except ValueError:
+        v = []
+    if len(v) != 3 or not all(math.isfinite(t) for t in v):
+        raise LocalizeError(f"--initial-pose {text!r} must be x,y,yaw: metres, metres and degrees, e.g. 1.2,1.4,0")
+    return np.array([v[0], v[1], math.radians(v[2])])
+
+
+def check_initial_pose(f: MapField, pose: np.ndarray) -> None:
+    if not f.is_free(pose[None, :2])[0]:
+        where = "in a wall" if f.is_occupied(pose[None, :2])[0] else "outside the map's free space"
+        raise LocalizeError(f"--initial-pose ({pose[0]:g}, {pose[1]:g}) lies {where}; give a pose in the map's frame "
+                            f"where the robot stood at the log's start")
+
+
+TRUTH_IN_MAP_MIN = 0.8  # share of the ground truth that must lie in the map's free space (or near its walls)
+
+
+def check_truth_frame(f: MapField, truth) -> None:
+    """The log's ground truth must lie in the map's free space: a map in another frame (a SLAM map starts at the
+    robot's first pose, the truth in the building's) would be scored against the wrong poses."""
+    _, pg = truth
+    xy = np.asarray(pg)[:, :2][:: max(1, len(pg) // 500)]
+    inside = f.is_free(xy) | f.is_occupied(xy)
+    if inside.mean() < TRUTH_IN_MAP_MIN:
+        raise LocalizeError(f"the log's ground truth lies outside the map's free space at {100 * (1 - inside.mean()):.0f} % "
+                            f"of its poses: the map is in another frame than the truth; give a map in the truth's "
+                            f"(building's) frame, or --no-truth to localize without scoring")

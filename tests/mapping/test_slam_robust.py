@@ -1,0 +1,241 @@
+"""SLAM that finishes whatever the log lacks: a 10 s laser blackout, 10 s without wheel odometry, 200+ scans in a
+featureless corridor, and a pose graph that gtsam's ISAM2 finds indeterminate. Each run completes, says in one
+warning line which stretch of the log (in seconds from the first scan) it had little to go by, and keeps the
+trajectory elsewhere as accurate as on a clean log (synthetic worlds with exact ground truth,
+tests/mapping/synthetic_laser.py)."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import gtsam
+import numpy as np
+import pytest
+
+from kosmap.backend.graph import GraphConfig, PoseGraph
+from kosmap.backend.metrics import ate
+from kosmap.frontend import se2
+from kosmap.frontend.records import Odometry, Scan
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import run_slam
+from tests.frontend.synthetic_log import write_mcap
+from tests.mapping.synthetic_laser import T0, cast, make_log, records
+
+
+@pytest.fixture(scope="module")
+def ring():
+    return make_log(seed=1)
+
+
+def _stretch(warnings: list[str], words: str) -> tuple[float, float]:
+    """The one warning line holding `words`, and the first stretch it names (t = a–b s)."""
+    lines = [w for w in warnings if words in w]
+    assert len(lines) == 1, warnings
+    m = re.search(r"t = ([\d.]+)–([\d.]+) s", lines[0])
+    assert m, lines[0]
+    return float(m.group(1)), float(m.group(2))
+
+
+def _ate_outside(r, truth_t, truth_p, a: float, b: float) -> float:
+    """ATE RMSE (m) of the scans more than 1 s outside [a, b] (seconds from the first scan)."""
+    t = r.stamps - r.stamps[0]
+    keep = (t < a - 1.0) | (t > b + 1.0)
+    return ate(r.stamps[keep], r.poses[keep], truth_t, truth_p)["rmse"]
+
+
+def _run(tmp_path, recs):
+    r = run_slam(write_mcap(recs, tmp_path / "log.mcap"), Config(), "laser")
+    return r, r.ground_truth
+
+
+@pytest.mark.slow
+def test_laser_blackout_of_10_s_is_named_and_bridged(ring, tmp_path):
+    t_rel = (ring.stamps_ns - ring.stamps_ns[0]) * 1e-9
+    dark = (t_rel > 60.0) & (t_rel < 70.0)  # no laser message at all for 10 s (the odometry goes on)
+    gone = set(ring.stamps_ns[dark].tolist())
+    recs = [x for x in records(ring) if not (isinstance(x, Scan) and x.stamp_ns in gone)]
+    r, (tg, pg) = _run(tmp_path, recs)
+    a, b = _stretch(r.warnings, "no usable scan")
+    assert abs(a - 60.0) <= 0.3 and abs(b - 70.0) <= 0.3, (a, b)
+    assert r.stretches["no_scans_s"] == [[pytest.approx(a, abs=0.05), pytest.approx(b, abs=0.05)]]
+    err = _ate_outside(r, tg, pg, a, b)
+    assert err <= 0.05, err  # measured 0.018 m; the clean log 0.02 m
+    whole = ate(r.stamps, r.poses, tg, pg)["rmse"]
+    assert whole <= 0.06, whole
+
+
+@pytest.mark.slow
+def test_ten_seconds_without_odometry_is_named(ring, tmp_path):
+    t_rel = lambda ns: (ns - ring.stamps_ns[0]) * 1e-9  # noqa: E731
+    recs = [x for x in records(ring)
+            if not (isinstance(x, Odometry) and x.topic == "/odom" and 90.0 < t_rel(x.stamp_ns) < 100.0)]
+    r, (tg, pg) = _run(tmp_path, recs)
+    a, b = _stretch(r.warnings, "no wheel odometry")
+    assert abs(a - 90.0) <= 0.6 and abs(b - 100.0) <= 0.6, (a, b)
+    assert not any("scan(s) had no wheel odometry" in w for w in r.warnings)  # the count line is not repeated
+    odom = np.isfinite(r.odom_poses[:, 0])
+    t = r.stamps - r.stamps[0]
+    assert not odom[(t > 90.6) & (t < 99.4)].any()  # never interpolated across the gap
+    assert ate(r.stamps, r.poses, tg, pg)["rmse"] <= 0.06
+
+
+def corridor_log(seed: int = 0, length: float = 60.0, rate: float = 5.0, speed: float = 1.0, max_range: float = 30.0):
+    """A 2.5 m corridor with pillars in its first and last 6 m and bare walls between; the robot drives its length
+    once. Scans: 181 beams forward over 180° (Intel-like), 1 cm noise, range `max_range`: from x ≈ 5 m the pillars
+    behind are out of view and those ahead out of range until x ≈ 26 m from the end. Odometry: 1 % scale error,
+    heading noise. Returns (records, stamps ns, truth)."""
+    rng = np.random.default_rng(seed)
+    segs = [(-8.0, 0.0, length + 8.0, 0.0), (-8.0, 2.5, length + 8.0, 2.5), (-8.0, 0.0, -8.0, 2.5),
+            (length + 8.0, 0.0, length + 8.0, 2.5)]
+    for x in (-6.0, -3.0, 1.0, 4.0, length - 4.0, length - 1.0, length + 3.0, length + 6.0):
+        for y0, y1 in ((0.0, 0.4), (2.1, 2.5)):
+            segs += [(x, y0, x + 0.4, y0), (x + 0.4, y0, x + 0.4, y1), (x + 0.4, y1, x, y1), (x, y1, x, y0)]
+    segs = np.array(segs)
+    n = int(length / speed * rate)
+    t = np.arange(n) / rate
+    truth = np.column_stack((t * speed, np.full(n, 1.25), np.zeros(n)))
+    angles = -math.pi / 2 + np.arange(181) * (math.pi / 180)
+    stamps = (T0 + np.round(t * 1e9)).astype(np.int64)
+    recs, odom = [], truth[0].copy()
+    for k, (ts, pose) in enumerate(zip(stamps, truth)):
+        if k:
+            d = se2.between(truth[k - 1], pose)
+            d[:2] *= 1.01
+            d[2] += rng.normal(0, math.radians(0.3) * math.sqrt(abs(d[0]) + 1e-3))
+            odom = se2.compose(odom, d)
+        r = cast(segs, pose[:2], pose[2] + angles, max_range)
+        r = np.where(np.isfinite(r), r + rng.normal(0, 0.01, len(r)), r).astype(np.float32)
+        recs.append(Scan(int(ts), r, float(angles[0]), math.pi / 180, 0.1, max_range, "base_link", "/scan"))
+        recs.append(Odometry(int(ts) + 1000, *map(float, odom), "odom", "base_link", "/odom"))
+        recs.append(Odometry(int(ts) + 2000, *map(float, pose), "map", "base_link", "/ground_truth/odom"))
+    return recs, stamps, truth
+
+
+@pytest.mark.slow
+def test_featureless_corridor_is_named_and_held_by_odometry(tmp_path):
+    recs, stamps, truth = corridor_log()
+    r, (tg, pg) = _run(tmp_path, recs)
+    a, b = _stretch(r.warnings, "fixed no position along the way")
+    n_blind = int(np.sum((r.stamps - r.stamps[0] >= a) & (r.stamps - r.stamps[0] <= b)))
+    assert n_blind >= 200, (a, b, n_blind)  # measured t = 4.4–49.0 s, 223 scans, 45 m
+    assert a <= 6.0 and b >= 45.0, (a, b)
+    before = (r.stamps - r.stamps[0]) < a - 1.0
+    assert ate(r.stamps[before], r.poses[before], tg, pg)["rmse"] <= 0.03
+    err = ate(r.stamps, r.poses, tg, pg)
+    odom = ate(r.stamps, r.odom_poses, tg, pg)
+    assert err["max"] <= 0.5 and err["rmse"] <= 1.5 * odom["rmse"], (err, odom)  # measured 0.21 m (odometry 0.19 m)
+
+
+def _raw_isam_fails_on(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values) -> bool:
+    try:
+        gtsam.ISAM2().update(graph, values)
+    except RuntimeError as e:
+        return "Indeterminate" in str(e)
+    return False
+
+
+def test_graph_chained_by_a_gyro_factor_alone_gets_a_weak_motion_prior():
+    """Node 3 is tied to node 2 by the gyro's yaw-only factor alone (x, y σ of a kilometre): ISAM2 as such throws
+    gtsam's IndeterminateSystemException; the pose graph chains node 3 with a weak motion prior and solves."""
+    g = PoseGraph(GraphConfig())
+    truth = np.array([[i * 1.0, 0.1 * i, 0.05 * i] for i in range(6)])
+    for p in truth:
+        g.add_node(p)
+    for i in range(1, 6):
+        if i != 3:
+            g.add_match(i - 1, i, se2.between(truth[i - 1], truth[i]))
+    g.add_gyro(2, 3, 0.05, 0.1)
+    raw = gtsam.NonlinearFactorGraph()
+    for f in g.factors:
+        raw.add(f)
+    assert _raw_isam_fails_on(raw, g.initial)  # the failure the 80-minute log met, reproduced
+    g.update()
+    g.optimize()
+    assert g.weak_nodes == [3]
+    assert np.abs(g.est - truth).max() < 1e-6
+
+
+def test_indeterminate_isam_is_re_solved_and_reported():
+    """A factor the chain check cannot see makes ISAM2's Cholesky factorisation fail: the graph restarts with QR
+    and names the node; the solution equals the truth."""
+    g = PoseGraph(GraphConfig())
+    truth = np.array([[i * 1.0, 0.0, 0.0] for i in range(4)])
+    for p in truth:
+        g.add_node(p)
+    g.add_match(0, 1, truth[1])
+    bad = gtsam.BetweenFactorPose2(1, 2, gtsam.Pose2(1, 0, 0), gtsam.noiseModel.Diagonal.Sigmas(np.array([1e3, 1e3, 1e-3])))
+    g.pending.add(bad)
+    g.all_factors.add(bad)
+    g._chain[2] = np.eye(3)  # (as if it chained node 2: only ISAM2 finds out)
+    g.add_match(2, 3, truth[1])
+    g.update()
+    assert g.factorization == "QR"
+    assert g.solver_notes[0][0] == 2 and "Indeterminate" in g.solver_notes[0][1]
+    g.optimize()
+    assert np.abs(g.est - truth).max() < 1e-6
+
+
+def test_slam_run_with_an_indeterminate_graph_finishes_with_one_warning(ring):
+    """The same through a whole run: ISAM2 fails once mid-run (as on the 80-minute hospital log); the run
+    finishes, one warning line names the time, and the trajectory is as good as a clean run's."""
+    from kosmap.frontend.odometry import OdometryConfig, scan_points_base
+    from kosmap.backend.slam import Slam
+
+    class Flaky:  # ISAM2, failing on its fifth update
+        def __init__(self, isam):
+            self.isam, self.calls = isam, 0
+
+        def update(self, *args):
+            self.calls += 1
+            if self.calls == 5:
+                raise RuntimeError("\nIndeterminate linear system detected while working near variable\n130 (Symbol: 130).\n")
+            return self.isam.update(*args)
+
+        def __getattr__(self, name):
+            return getattr(self.isam, name)
+
+    slam = Slam(OdometryConfig(), GraphConfig())
+    slam.graph.isam = Flaky(slam.graph.isam)
+    n = 600
+    for scan, o in zip(ring.scans[:n], ring.odom[:n]):
+        slam.add_scan(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), ring.mount, 0.1, 30.0), o)
+    r = slam.finish()
+    lines = [w for w in r.warnings if "pose graph could not be solved" in w]
+    assert len(lines) == 1, r.warnings
+    t130 = (r.keyframes[130].stamp_ns - r.stamps_ns[0]) * 1e-9
+    assert f"near t = {t130:.1f} s" in lines[0]
+    assert ate(r.stamps, r.poses, r.stamps, ring.truth[:n])["rmse"] <= 0.05
+
+
+def _ring_run(ring, gcfg: GraphConfig, wrong_loop: bool = False):
+    from kosmap.frontend.odometry import OdometryConfig, scan_points_base
+    from kosmap.backend.slam import Slam
+
+    slam = Slam(OdometryConfig(), gcfg)
+    n = len(ring.scans)
+    for i, (scan, o) in enumerate(zip(ring.scans, ring.odom)):
+        slam.add_scan(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), ring.mount, 0.1, 30.0), o)
+        if wrong_loop and i == 3 * n // 4:  # node 5 claimed 0.9 m and 11° from where the robot is
+            slam.graph.add_loop(5, len(slam.keyframes) - 1, np.array([0.8, 0.5, 0.2]))
+    r = slam.finish()
+    return r, ate(r.stamps, r.poses, r.stamps, ring.truth)["rmse"]
+
+
+@pytest.mark.slow
+def test_self_consistency_tells_a_bent_map_from_a_good_one():
+    """Without ground truth: the good run's revisits lie mm off the earlier scans and it is not called bent; with
+    loop closure off (drift left in), or a wrong loop under a plain Gaussian kernel, the figure says bent and one
+    warning line says where. The ground truth agrees (ATE)."""
+    ring = make_log(seed=0)
+    good, e_good = _ring_run(ring, GraphConfig())
+    c = good.consistency
+    assert not c["bent"] and c["median_m"] <= 0.015 and c["loops_disagreeing"] == 0, c  # measured 0.006 m
+    assert not any("likely bent" in w for w in good.warnings)
+    for gcfg, wrong in ((GraphConfig(loop_closure=False), False), (GraphConfig(robust_kernel="none"), True)):
+        bent, e_bent = _ring_run(ring, gcfg, wrong)
+        assert bent.consistency["bent"], bent.consistency  # measured: revisits 0.038 m off; 19 of 98 loops missed
+        assert len([w for w in bent.warnings if "likely bent" in w]) == 1
+        assert e_bent > 3 * e_good, (e_bent, e_good)  # 0.070 and 4.6 m against 0.018 m
+    robust, e_robust = _ring_run(ring, GraphConfig(), True)  # the Cauchy kernel leaves the wrong loop out
+    assert not robust.consistency["bent"] and e_robust <= 0.03
