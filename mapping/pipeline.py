@@ -326,8 +326,11 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             results[name] = res
             warnings.extend(f"{name} SLAM: {w}" for w in res.warnings)  # the gyro's, the heading priors'
         slam_finish_s = time.perf_counter() - t_slam
-        if not results:
-            raise KosmapError(f"{log.name}: no scan reached SLAM (every scan was empty?); nothing to map")
+        if not results:  # why: a SLAM's own failure, else what the reading skipped
+            from kosmap.mapping.slam import nothing_reached_slam
+
+            failed = [w.replace(" produced no trajectory", "") for w in warnings if "SLAM produced no trajectory" in w]
+            raise KosmapError(f"{log.name}: {failed[0]}" if failed else nothing_reached_slam(log, "scan", warnings))
         rss["after_slam"] = peak_rss_mb()
         spill: Spill = p1["spill"]
         t_maps = time.perf_counter()
