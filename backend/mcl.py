@@ -199,6 +199,8 @@ class Estimate:
     spread_xy: float  # √(trace of the whole set's position covariance), m
     spread_yaw: float  # circular standard deviation of the whole set's headings, rad
     mode_weight: float  # share of the weight in the mode
+    mode_xy: float = 0.0  # √(trace of the mode's position covariance), m
+    mode_yaw: float = 0.0  # standard deviation of the mode's headings, rad
 
 
 def estimate(parts: np.ndarray, weights: np.ndarray, radius: float = 0.5, yaw_radius: float = math.radians(30),
@@ -216,6 +218,7 @@ def estimate(parts: np.ndarray, weights: np.ndarray, radius: float = 0.5, yaw_ra
     yaw0 = math.atan2(np.sum(w[sel] * np.sin(parts[sel, 2])), np.sum(w[sel] * np.cos(parts[sel, 2])))
     c = np.array([np.sum(w[sel] * parts[sel, 0]) / w[sel].sum(), np.sum(w[sel] * parts[sel, 1]) / w[sel].sum(), yaw0])
     share = 0.0
+    near = np.zeros(len(w), bool)
     for _ in range(5):
         near = ((parts[:, 0] - c[0]) ** 2 + (parts[:, 1] - c[1]) ** 2 <= radius ** 2) & \
                (np.abs(se2.wrap(parts[:, 2] - c[2])) <= yaw_radius)
@@ -225,7 +228,12 @@ def estimate(parts: np.ndarray, weights: np.ndarray, radius: float = 0.5, yaw_ra
         share = float(wn.sum())
         yaw = c[2] + math.atan2(np.sum(wn * np.sin(parts[near, 2] - c[2])), np.sum(wn * np.cos(parts[near, 2] - c[2])))
         c = np.array([np.sum(wn * parts[near, 0]) / share, np.sum(wn * parts[near, 1]) / share, float(se2.wrap(yaw))])
-    return Estimate(c, spread_xy, spread_yaw, share)
+    mode_xy = mode_yaw = 0.0
+    if share > 0:
+        wn = w[near] / share
+        mode_xy = math.sqrt(max(np.sum(wn * ((parts[near, 0] - c[0]) ** 2 + (parts[near, 1] - c[1]) ** 2)), 0.0))
+        mode_yaw = math.sqrt(max(np.sum(wn * se2.wrap(parts[near, 2] - c[2]) ** 2), 0.0))
+    return Estimate(c, spread_xy, spread_yaw, share, mode_xy, mode_yaw)
 
 
 @dataclass

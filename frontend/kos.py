@@ -112,8 +112,23 @@ class Bearings:
         return self.angle_min + np.arange(self.n) * self.angle_increment
 
 
+def check_camera(camera: CameraModel) -> None:
+    """LogError when the intrinsics cannot place a column's bearing (a 1×1 image, a focal length that is not a
+    positive number, a principal point far outside the image: frontend/logs/validate.py); the readers skip such
+    records, this keeps the stage itself from dividing by them."""
+    from kosmap.frontend.errors import LogError
+    from kosmap.frontend.logs.validate import camera_problem
+
+    why = camera_problem(camera)
+    if why is not None:
+        name = camera.topic or camera.frame_id or "the depth camera"
+        raise LogError(f"{name}: the KOS cannot use a camera with {why}; fix its CameraInfo, or leave it out so that "
+                       f"[depth] fov_h_deg, fov_v_deg serve")
+
+
 def camera_view(camera: CameraModel, mount: Transform) -> tuple[float, float]:
     """(rightmost, leftmost) bearing in base_link of the camera's first and last column centres."""
+    check_camera(camera)
     axis = mount.matrix()[:3, :3] @ np.array([0.0, 0.0, 1.0])  # optical z: the viewing direction
     yaw = math.atan2(axis[1], axis[0])
     right = math.atan((camera.width - 1 - camera.cx) / camera.fx)  # optical x points right: last column is rightmost

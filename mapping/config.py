@@ -20,6 +20,7 @@ from kosmap.frontend.odometry import OdometryConfig
 from kosmap.frontend.params import StageConfig, param
 from kosmap.mapping.compare import CompareConfig
 from kosmap.mapping.grid import GridConfig
+from kosmap.mapping.limits import check_config, check_value
 from kosmap.mapping.localize_config import LocalizeConfig
 
 
@@ -107,6 +108,9 @@ def _section(name: str, values: dict[str, Any], where: str, from_set: frozenset[
         if default is not None and not isinstance(values[key], (list, tuple)):  # say how to write one
             raise ConfigError(f"config [{name}] {key} = {values[key]!r} must be a list, "
                               f"{_list_example(f'{name}.{key}', default, f'{name}.{key}' in from_set)}")
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for key, value in values.items():  # finite, and within what sensors and buildings allow (mapping/limits.py)
+        check_value(name, key, fields[key].metadata.get("unit", ""), value)
     try:
         return cls(**values)
     except TypeError as e:  # a value of a type the dataclass cannot take
@@ -142,6 +146,8 @@ def load_config(path: str | Path | None = None, overrides: list[str] | dict[str,
     if path is not None:
         p = Path(path)
         where = str(p)
+        if p.is_dir():
+            raise ConfigError(f"config file {p} is a folder; give a TOML file (a section per stage) or drop --config")
         if not p.is_file():
             raise ConfigError(f"config file {p} does not exist; give an existing TOML file (a section per stage) or drop --config")
         try:
@@ -158,7 +164,9 @@ def load_config(path: str | Path | None = None, overrides: list[str] | dict[str,
             raise ConfigError(f"override '{dotted}' must look like section.key=value, e.g. fspf.n_min=50")
         data.setdefault(name, {})[key] = value
         from_set.add(dotted)
-    return Config(**{name: _section(name, values, where, from_set) for name, values in data.items()})
+    cfg = Config(**{name: _section(name, values, where, from_set) for name, values in data.items()})
+    check_config(cfg)
+    return cfg
 
 
 def parse_override(text: str) -> tuple[str, Any]:

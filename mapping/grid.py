@@ -11,7 +11,14 @@ from numba import njit
 
 from kosmap.frontend import se2
 from kosmap.frontend.deskew import deskew_points, sensor_twist
+from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.params import StageConfig, param
+
+MAX_CELLS = 200_000_000  # cells one grid may have: 1.6 GB of log-odds (float32) and stamps (int32)
+
+
+class GridTooLarge(KosmapError):
+    """A map that would need more than MAX_CELLS cells at its resolution."""
 
 
 @dataclass
@@ -74,6 +81,12 @@ class OccupancyGrid:
 
 
 # ---- log-odds grid from poses and scans ---------------------------------------------------------------------------
+
+def _round_up(v: float) -> str:
+    """`v` rounded up to two significant digits, as text (0.0123 → "0.013")."""
+    e = math.floor(math.log10(v)) - 1
+    return f"{math.ceil(v / 10 ** e) * 10 ** e:.{max(0, -e)}f}"
+
 
 def _logit(p: float) -> float:
     return float(np.log(p / (1.0 - p)))
@@ -195,6 +208,8 @@ def _beam_ends(ranges, angle_min, inc, range_min, range_max, clear, max_range, s
             y = sy + length * math.sin(b)
         x /= res
         y /= res
+        if not (abs(x) < 1e15 and abs(y) < 1e15):  # NaN or far beyond any map (a NaN angle or pose): not a beam
+            continue
         ex[n] = x
         ey[n] = y
         hit[n] = h
@@ -260,12 +275,25 @@ class GridBuilder:
                 nc1 = max(cmax + g + 1, nc1 + w // 2)
             if rmax >= nr1:
                 nr1 = max(rmax + g + 1, nr1 + h // 2)
+        if (nr1 - nr0) * (nc1 - nc0) > MAX_CELLS:  # the growth margin alone must not exceed the limit
+            nc0, nr0 = min(cmin, self.c0 if h else cmin), min(rmin, self.r0 if h else rmin)
+            nc1, nr1 = max(cmax, self.c0 + w - 1 if h else cmax) + 1, max(rmax, self.r0 + h - 1 if h else rmax) + 1
+            if (nr1 - nr0) * (nc1 - nc0) > MAX_CELLS:
+                self._too_large(nc1 - nc0, nr1 - nr0)
         lo = np.zeros((nr1 - nr0, nc1 - nc0), np.float32)
         se = np.zeros(lo.shape, np.int32)
         if h:
             lo[self.r0 - nr0:self.r0 - nr0 + h, self.c0 - nc0:self.c0 - nc0 + w] = self.log_odds
             se[self.r0 - nr0:self.r0 - nr0 + h, self.c0 - nc0:self.c0 - nc0 + w] = self.stamp
         self.log_odds, self.stamp, self.c0, self.r0 = lo, se, nc0, nr0
+
+    def _too_large(self, cols: int, rows: int) -> None:
+        wm, hm = cols * self.res, rows * self.res
+        finest = math.sqrt(wm * hm / MAX_CELLS)
+        raise GridTooLarge(f"the map would span {wm:.0f} m × {hm:.0f} m: at [grid] resolution = {self.res:g} m that is "
+                           f"{cols * rows:.3g} cells, more than the {MAX_CELLS:.0e} a map may have (1.6 GB); give "
+                           f"--set grid.resolution={_round_up(finest)} or more (a map this large from a building's "
+                           f"log means a jump in its odometry)")
 
     @property
     def seen(self) -> np.ndarray:
@@ -350,6 +378,10 @@ class GridBuilder:
     def add_beams(self, origin: np.ndarray, ends: np.ndarray, hit: np.ndarray) -> None:
         """Integrate beams from `origin` (2,) to `ends` (N×2, map frame); `hit[i]` marks a return at the end."""
         self.n_scans += 1
+        ok = np.all(np.abs(np.asarray(ends, np.float64)) < 1e15 * self.res, axis=1)  # NaN or far beyond any map: no beam
+        if not np.all(np.abs(np.asarray(origin, np.float64)) < 1e15 * self.res):
+            return
+        ends, hit = np.asarray(ends)[ok], np.asarray(hit)[ok]
         if len(ends) == 0:
             return
         res = self.res

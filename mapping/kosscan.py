@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from kosmap.frontend.errors import TopicError
+from kosmap.frontend.errors import LogError, TopicError
 from kosmap.frontend.kos import OBSTACLE
 from kosmap.frontend.kosframe import KosFrame
 from kosmap.frontend.logs import detect_topics, open_log
@@ -118,6 +118,9 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
     except BaseException:  # interrupted or failed: leave no CSV that looks complete (the MCAP writer aborts itself)
         csv_tmp.unlink(missing_ok=True)
         raise
+    if steps == 0:  # every depth frame skipped by the reader: say why, and leave no output looking valid
+        why = run.warnings[0].removeprefix(Path(log_path).name + ": ") if run.warnings else "no depth frame could be read"
+        raise LogError(f"{Path(log_path).name}: no depth frame gave a KOS scan: {why}")
     csv_tmp.replace(out / "scan_points.csv")
     for i, step in enumerate(figure_steps):
         _figure(out / f"kos_top_{i}.png", step, run.laser_mount, levels, figure_steps[0].stamp_ns)

@@ -59,6 +59,7 @@ class LocalizeResult:
     inliers: np.ndarray  # (S,) share of end points within σ_match of a wall
     particles: np.ndarray  # (S,) particle count
     ratio: np.ndarray  # (S,) augmented MCL's w_fast/w_slow
+    mode_share: np.ndarray  # (S,) share of the particles' weight in the mode the pose is taken from
     status: np.ndarray  # (S,) int8 SEARCHING / TRACKING / LOST
     snapshots: list[Snapshot] = field(default_factory=list)
     updates: int = 0
@@ -127,6 +128,7 @@ class _Filter:
         self.updates = 0
         self.found = False
         self.tight = 0  # filter updates in a row with a tight set
+        self.tracking = False  # the last scan's pose was claimed
         self.lost_since = -1
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
@@ -179,7 +181,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     rng = np.random.default_rng(cfg.seed)
     flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float))
     n = len(inp.stamps_ns)
-    out = {k: np.zeros(n) for k in ("sx", "sy", "score", "inl", "np", "ratio")}
+    out = {k: np.zeros(n) for k in ("sx", "sy", "share", "score", "inl", "np", "ratio")}
     poses = np.zeros((n, 3))
     fposes = np.zeros((n, 3))
     status = np.zeros(n, np.int8)
@@ -212,10 +214,18 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        tight = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        # a pose is claimed (first, or again after being lost) when the whole set has been tight for
+        # converged_updates updates in a row; it is kept while one mode holds most of the weight, tight, so that
+        # augmented MCL's random particles beside it (a share p_random of the set) do not make it lost
+        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw
+        held = (est.mode_weight >= cfg.converged_share and est.mode_xy <= cfg.converged_xy
+                and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
         if update:
-            flt.tight = flt.tight + 1 if tight else 0
-        converged = tight and (flt.found or flt.tight >= cfg.converged_updates)
+            flt.tight = flt.tight + 1 if whole and flt.rec.ratio >= cfg.lost_ratio else 0
+        converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
+        flt.tracking = converged
+        if converged and not flt.found:
+            flt.rec.w_slow = flt.rec.w_fast  # from here the long-term average is the tracking one, not the search's
         if converged:
             flt.found = True
             flt.lost_since = -1
@@ -225,8 +235,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             pred, coarse = pose_f, True
             if tracked is not None:
                 pt = se2.compose(tracked, se2.between(inp.odom[i - 1], u)) if inp.has_odom else tracked
-                gate_xy = max(cfg.refine_gate_sigmas * est.spread_xy, cfg.converged_xy)
-                gate_yaw = max(cfg.refine_gate_sigmas * est.spread_yaw, conv_yaw)
+                gate_xy = max(cfg.refine_gate_sigmas * est.mode_xy, cfg.converged_xy)
+                gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv_yaw)
                 if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
                     pred, coarse = pt, False
             pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse)
@@ -237,12 +247,13 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         p64 = np.ascontiguousarray(pts, dtype=np.float64)
         out["score"][i] = f_score(f, p64, pose)
         out["inl"][i] = inlier_fraction(f.match, f.origin[0], f.origin[1], f.resolution, p64, pose, math.exp(-0.5)) if len(p64) else 0.0
-        out["sx"][i], out["sy"][i] = est.spread_xy, est.spread_yaw
+        out["sx"][i], out["sy"][i], out["share"][i] = est.spread_xy, est.spread_yaw, est.mode_weight
         out["np"][i], out["ratio"][i] = len(flt.parts), flt.rec.ratio
         if progress is not None:
             progress(float(inp.stamps[i] - inp.stamps[0]), inp.duration_s)
     return LocalizeResult(inp.stamps_ns, poses, fposes, out["sx"], out["sy"], out["score"], out["inl"],
-                          out["np"].astype(int), out["ratio"], status, snaps, flt.updates, time.perf_counter() - t_start)
+                          out["np"].astype(int), out["ratio"], out["share"], status, snaps, flt.updates,
+                          time.perf_counter() - t_start)
 
 
 def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -266,8 +277,8 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     pose = np.asarray(pred, float)
     levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
-    for field, sigma in levels[0 if coarse else 1:]:
-        pose, _, _ = gauss_newton(field, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
+    for fld, sigma in levels[0 if coarse else 1:]:
+        pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
                                   w, 10, True, sigma)
     return pose
 

@@ -49,8 +49,9 @@ class LocalizeConfig(StageConfig):
     alpha_fast: float = param(0.1, lo=0.0, hi=1.0, doc="short-term average (AMCL recovery_alpha_fast)")
     lost_ratio: float = param(0.2, lo=0.0, hi=1.0, doc="w_fast/w_slow below this: the pose is lost, and a global set is added to the particles")
     # convergence
-    converged_xy: float = param(0.25, lo=0.0, lo_open=True, doc="the particles' position spread below which the pose counts as found", unit="m")
+    converged_xy: float = param(0.25, lo=0.0, lo_open=True, doc="the spread of the particles' mode below which the pose counts as found", unit="m")
     converged_yaw_deg: float = param(10.0, lo=0.0, lo_open=True, doc="… and their heading spread", unit="deg")
+    converged_share: float = param(0.6, lo=0.0, hi=1.0, lo_open=True, doc="… with at least this share of the weight in one mode (0.5 m, 30° around the pose)")
     converged_updates: int = param(10, lo=1, doc="… for this many filter updates in a row (~2 m of travel at update_min_d) before a pose is first claimed: one tight update can be a lucky wrong corner")
     # tracking refined by the scan-to-map matcher (frontend/matcher.py gauss_newton against the map's field)
     refine: bool = param(True, doc="refine each pose by Gauss–Newton against the map, starting from the last refined pose moved by the odometry")

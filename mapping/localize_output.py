@@ -79,11 +79,11 @@ def metrics(result: LocalizeResult, inp, cfg, map_path: str, truth: bool = True)
 
 
 def write_confidence(path: Path, result: LocalizeResult) -> Path:
-    rows = ["t,x,y,yaw,spread_xy_m,spread_yaw_deg,score,inliers,particles,w_fast_over_w_slow,status"]
+    rows = ["t,x,y,yaw,spread_xy_m,spread_yaw_deg,mode_share,score,inliers,particles,w_fast_over_w_slow,status"]
     for i in range(len(result.stamps_ns)):
         x, y, th = result.poses[i]
         rows.append(f"{result.stamps[i]:.6f},{x:.4f},{y:.4f},{th:.5f},{result.spread_xy[i]:.4f},"
-                    f"{math.degrees(result.spread_yaw[i]):.3f},{result.score[i]:.4f},{result.inliers[i]:.4f},"
+                    f"{math.degrees(result.spread_yaw[i]):.3f},{result.mode_share[i]:.3f},{result.score[i]:.4f},{result.inliers[i]:.4f},"
                     f"{result.particles[i]},{result.ratio[i]:.4f},{STATUS_NAMES[result.status[i]]}")
     tmp = path.with_name(path.name + ".partial")
     tmp.write_text("\n".join(rows) + "\n")

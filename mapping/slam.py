@@ -137,7 +137,8 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
 def nothing_reached_slam(path, what: str, warnings: list[str]) -> str:
     """The error of a run where no scan reached SLAM, with the first thing the reading skipped (the reason, when
     the log's scans or frames could not be used) rather than a count of zero scans."""
-    why = f": {warnings[0].removeprefix(Path(path).name + ': ')}" if warnings else " (every scan was empty?)"
+    first = next((w for w in warnings if "skipped" in w), warnings[0] if warnings else None)
+    why = f": {first.removeprefix(Path(path).name + ': ')}" if first else " (every scan was empty?)"
     return f"{Path(path).name}: no {what} reached SLAM{why}; nothing to map"
 
 

@@ -65,6 +65,19 @@ def make_app():
     return app
 
 
+def _usage_error(e) -> int:
+    """A click usage error (bad option value, missing argument, unknown command) as one line naming the command's
+    help; `kosmap` or a command group without arguments shows its help, as before."""
+    ctx = getattr(e, "ctx", None)
+    if type(e).__name__ == "NoArgsIsHelpError" and ctx is not None:
+        print(ctx.get_help())
+        return 2
+    where = ctx.command_path if ctx is not None else "kosmap"
+    msg = " ".join(e.format_message().split()).rstrip(".")
+    print(f"kosmap: error: {msg}; see `{where} --help`", file=sys.stderr)
+    return getattr(e, "exit_code", 2)
+
+
 def _caused_by_interrupt(e: BaseException) -> bool:
     """A KeyboardInterrupt somewhere in the exception's chain."""
     seen = set()
@@ -86,8 +99,16 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(argv: list[str] | None, sig: _Signals) -> int:
+    import typer
+
     try:
-        make_app()(args=argv, prog_name="kosmap")  # standalone: click prints usage errors and exits
+        code = make_app()(args=argv, prog_name="kosmap", standalone_mode=False)  # the exit code, or None
+        if isinstance(code, int) and not isinstance(code, bool) and code:
+            if code == 130:  # typer's answer to a KeyboardInterrupt in a command (it prints nothing)
+                print("kosmap: interrupted", file=sys.stderr)
+            return code
+    except typer.TyperException as e:  # a usage error: one line (click's is a box of six or more)
+        return _usage_error(e)
     except SystemExit as e:
         if e.code == 130:  # typer's answer to a KeyboardInterrupt in a command (it prints nothing)
             print("kosmap: interrupted", file=sys.stderr)

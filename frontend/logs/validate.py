@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from kosmap.frontend import se2
-from kosmap.frontend.records import CameraModel, DepthFrame, Odometry, OdometrySamples, Scan
+from kosmap.frontend.records import CameraModel, DepthFrame, Odometry, OdometrySamples, Scan, Transforms
 
 # Stamps in ns: from the epoch to 2^62 ns (year 2116). Beyond, int64 arithmetic on stamps (differences, sums of
 # offsets) overflows; before the epoch no recorder writes.
@@ -75,6 +75,9 @@ class RecordGuard:
             return rec
         if isinstance(rec, DepthFrame):
             return self._depth(rec)
+        if isinstance(rec, Transforms):
+            why = transforms_problem(rec)
+            return self._skip(rec, why, stamp, "check the tf publisher") if why else rec
         return rec
 
     # -- kinds ---------------------------------------------------------------------------------------------------------
@@ -184,4 +187,14 @@ def camera_problem(c: CameraModel) -> str | None:
     if not (-MAX_PRINCIPAL_OFFSET * w <= cx <= (1 + MAX_PRINCIPAL_OFFSET) * w
             and -MAX_PRINCIPAL_OFFSET * h <= cy <= (1 + MAX_PRINCIPAL_OFFSET) * h):
         return f"a principal point ({cx:g}, {cy:g}) far outside its {w}×{h} image"
+    return None
+
+
+def transforms_problem(rec: Transforms) -> str | None:
+    """Why a tf message is unusable (a transform with a non-finite or impossible translation or rotation), else
+    None."""
+    for tf in rec.transforms:
+        t, q = np.asarray(tf.translation, dtype=float), np.asarray(tf.rotation, dtype=float)
+        if not (np.isfinite(t).all() and np.isfinite(q).all()) or np.abs(t).max(initial=0) > 1e7:
+            return f"a transform {tf.parent} → {tf.child} with non-finite or impossible numbers"
     return None

@@ -106,7 +106,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         say(("interrupted: mapping what was read, " if read.partial else "")
             + f"{read.frames} depth frames, {read.laser_kept} laser scans read in {read.seconds:.1f} s")
         t_slam = time.perf_counter()
-        results = solve_slams(feeds, log.name, warnings)
+        results = solve_slams(feeds, log, warnings)
         slam_finish_s = time.perf_counter() - t_slam
         rss["after_slam"] = peak_rss_mb()
         jobs = Jobs(workers, pool.executor if pool is not None else None)

@@ -5,6 +5,7 @@ when the build runs in parallel (mapping/runtime/slamproc.py), solved once the l
 from __future__ import annotations
 
 import multiprocessing as mp
+from pathlib import Path
 
 from kosmap.backend.graph import GraphConfig
 from kosmap.backend.kosprofile import kos_graph_config, kos_odometry_config
@@ -14,6 +15,7 @@ from kosmap.frontend.odometry import OdometryConfig
 from kosmap.mapping.build.readpass import LogSources
 from kosmap.mapping.config import Config
 from kosmap.mapping.runtime.slamproc import RemoteFeed, SlamProcessError
+from kosmap.mapping.slam import nothing_reached_slam
 from kosmap.mapping.slamfeed import SlamFeed, no_odom_warning
 
 
@@ -38,7 +40,7 @@ def start_slams(feeds: dict, src: LogSources, cfg: Config, kos_cfgs: tuple[Odome
             feeds[name] = RemoteFeed(feeds[name], name)
 
 
-def solve_slams(feeds: dict, log_name: str, warnings: list[str]) -> dict[str, SlamResult]:
+def solve_slams(feeds: dict, log: Path, warnings: list[str]) -> dict[str, SlamResult]:
     """Each SLAM's final solve; a SLAM that failed is a warning, none left is the build's failure."""
     results = {}
     for name, feed in feeds.items():
@@ -55,6 +57,7 @@ def solve_slams(feeds: dict, log_name: str, warnings: list[str]) -> dict[str, Sl
             continue
         results[name] = res
         warnings.extend(f"{name} SLAM: {w}" for w in res.warnings)  # the gyro's, the heading priors'
-    if not results:
-        raise KosmapError(f"{log_name}: no scan reached SLAM (every scan was empty?); nothing to map")
+    if not results:  # why: a SLAM's own failure, else what the reading skipped
+        failed = [w.replace(" produced no trajectory", "") for w in warnings if "SLAM produced no trajectory" in w]
+        raise KosmapError(f"{log.name}: {failed[0]}" if failed else nothing_reached_slam(log, "scan", warnings))
     return results

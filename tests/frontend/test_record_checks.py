@@ -129,3 +129,17 @@ def test_scan_over_a_1x1_depth_frame_completes(tmp_path, capsys):
     assert "has a depth image of 1×1 pixels" in out + err
     with open_log(tmp_path / "kos" / "kos.mcap") as log:
         assert log.info().count("/kinect_scan/obstacle") == n - 1
+
+
+def test_transform_with_non_finite_numbers_is_skipped(tmp_path):
+    from kosmap.frontend.records import Transform, Transforms
+
+    def edit(r, i):
+        if isinstance(r, Transforms):
+            bad = Transform("base_link", "laser", np.array([np.nan, 0.0, 0.3]), np.array([0.0, 0.0, 0.0, 1.0]))
+            return dataclasses.replace(r, transforms=(*r.transforms[:1], bad))
+        return r
+
+    recs, warnings = _read(_log(tmp_path, edit))
+    assert not [r for r in recs if isinstance(r, Transforms)]
+    assert len(warnings) == 1 and "a transform base_link → laser with non-finite or impossible numbers" in warnings[0]

@@ -239,3 +239,32 @@ def test_self_consistency_tells_a_bent_map_from_a_good_one():
         assert e_bent > 3 * e_good, (e_bent, e_good)  # 0.070 and 4.6 m against 0.018 m
     robust, e_robust = _ring_run(ring, GraphConfig(), True)  # the Cauchy kernel leaves the wrong loop out
     assert not robust.consistency["bent"] and e_robust <= 0.03
+
+
+@pytest.mark.slow
+def test_blackout_warning_reaches_console_metrics_and_report_of_slam_and_build(ring, tmp_path, capsys):
+    """The stretch's one warning line on the console, in metrics.json and (build) in the report, from both commands;
+    and each command's self-consistency figure beside it."""
+    import json
+
+    from kosmap.tools.cli import main
+
+    t_rel = (ring.stamps_ns - ring.stamps_ns[0]) * 1e-9
+    gone = set(ring.stamps_ns[(t_rel > 60.0) & (t_rel < 70.0)].tolist())
+    path = write_mcap([x for x in records(ring) if not (isinstance(x, Scan) and x.stamp_ns in gone)], tmp_path / "log.mcap")
+    assert main(["slam", str(path), "--out", str(tmp_path / "s"), "--no-map"]) == 0
+    out, err = capsys.readouterr()
+    lines = [w for w in err.splitlines() if "no usable scan" in w]
+    assert len(lines) == 1 and re.search(r"t = 59\.\d–70\.\d s", lines[0]), err
+    assert "self-consistency: revisits" in out
+    run = json.loads((tmp_path / "s" / "metrics.json").read_text())["run"]
+    assert sum("no usable scan" in w for w in run["warnings"]) == 1 and len(run["stretches"]["no_scans_s"]) == 1
+    assert run["consistency"]["median_m"] < 0.03 and not run["consistency"]["bent"]
+    assert main(["build", str(path), "--out", str(tmp_path / "b"), "--workers", "0"]) == 0
+    out, err = capsys.readouterr()
+    assert sum("laser SLAM: no usable scan" in w for w in err.splitlines()) == 1, err
+    m = json.loads((tmp_path / "b" / "metrics.json").read_text())
+    assert sum("no usable scan" in w for w in m["warnings"]) == 1
+    assert m["slam"]["laser"]["stretches"]["no_scans_s"] == run["stretches"]["no_scans_s"]  # the same run
+    assert "no usable scan" in (tmp_path / "b" / "report.md").read_text()
+    assert "consistency   laser SLAM" in out

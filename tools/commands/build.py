@@ -66,5 +66,10 @@ def register(app: typer.Typer) -> None:
                       reads=() if config is None else (config,))
         if not quiet:
             print_headline(res.metrics, out)
+        else:  # what was skipped or doubtful is never silent
+            from kosmap.mapping.report import run_warnings
+
+            for w in run_warnings(res.metrics):
+                print(f"warning: {w}", file=sys.stderr)
         if res.partial:
             raise typer.Exit(130)  # like an interrupted command, though its outputs were written (marked partial)

@@ -22,6 +22,7 @@ def register(app: typer.Typer) -> None:
         map_scale: Annotated[Optional[float], typer.Option("--map-scale", help="Metres per pixel of a plain blueprint image.")] = None,
         initial_pose: Annotated[Optional[str], typer.Option("--initial-pose", help="x,y,yaw (m, m, degrees) where the log starts, in the map's frame; without it the pose is searched for over the whole map.")] = None,
         source: Annotated[str, typer.Option("--source", help="Scans to localize with: kos (the depth camera's KOS obstacle scan) or laser.")] = "kos",
+        ground_truth: Annotated[Optional[Path], typer.Option("--ground-truth", help="TUM trajectory in the map's frame to score against instead of the log's ground-truth topic (e.g. the `kosmap slam` run that built the map).")] = None,
         no_truth: Annotated[bool, typer.Option("--no-truth", help="Ignore the log's ground-truth topic (a map in another frame than the truth).")] = False,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or summary.")] = False,
         workers: Annotated[int, typer.Option("--workers", help="--source kos: processes for FSPF+ and KOS (0 = serial, here).")] = 0,
@@ -53,6 +54,10 @@ def register(app: typer.Typer) -> None:
             L.check_initial_pose(f, pose0)
         with seconds_bar("read", "{task.fields[t]:.0f}/{task.total:.0f} s of log", quiet) as tick:
             inp = read_input(log, cfg, source, progress=tick, workers=workers)
+        if ground_truth is not None:
+            from kosmap.backend.trajio import read_tum
+
+            inp.ground_truth = read_tum(ground_truth)
         truth = not no_truth and inp.ground_truth is not None
         if truth:
             L.check_truth_frame(f, inp.ground_truth)

@@ -48,6 +48,8 @@ def register(app: typer.Typer) -> None:
             metrics = evaluate(result, relations, ground_truth)
             grid = None if no_map else build_map(result, cfg.grid)
             paths = save_run(result, stage, cfg, metrics, grid)  # moved into --out when complete
+        for w in result.warnings:  # also under --quiet: what was skipped or doubtful is never silent
+            print(f"warning: {w}", file=sys.stderr)
         if quiet:
             return
         t = result.timings
@@ -76,8 +78,6 @@ def register(app: typer.Typer) -> None:
         from kosmap.mapping.report import consistency_text
 
         print(f"self-consistency: {consistency_text(result.consistency)}")
-        for w in result.warnings:
-            print(f"warning: {w}", file=sys.stderr)
         names = [n for k, p in paths.items()  # map.yaml's image, map.pgm, is written beside it
                  for n in ((p.with_suffix(".pgm").name, p.name) if k == "map_yaml" else (p.name,))]
         print(f"wrote {', '.join(names)} to {out}")

@@ -133,6 +133,10 @@ class SimConfig(StageConfig):
         if self.depth_sigma_4m < self.depth_sigma_1m or (self.depth_sigma_1m == 0) != (self.depth_sigma_4m == 0):
             raise ConfigError(f"config [{s}] depth_sigma_4m = {self.depth_sigma_4m} must be ≥ depth_sigma_1m = "
                               f"{self.depth_sigma_1m} (both 0 for no axial noise)")
+        slowest = min(self.depth_rate, self.laser_rate, self.odom_rate, self.imu_rate, self.gt_rate)
+        if 0 < self.duration < 2.0 / slowest:  # every stream needs two samples (odometry and truth interpolate)
+            raise ConfigError(f"config [{s}] duration = {self.duration:g} s is too short: give 0 (the whole path) or at "
+                              f"least {2.0 / slowest:.3g} s (two samples of the slowest stream, {slowest:g} Hz)")
         for name in ("imu_gaps", "imu_stuck"):
             object.__setattr__(self, name, _intervals(s, name, getattr(self, name)))
         for name in ("camera_ns", "rear_ns", "scan_topic", "odom_topic", "gt_topic", "imu_topic"):
