@@ -167,7 +167,10 @@ class ImageFolder(LogReader):
     def read_image(self, path: Path) -> np.ndarray:
         import cv2
 
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (2^30)
+            raise LogError(f"cannot read depth image {path} ({str(e).strip().splitlines()[-1]}); check the file") from e
         if img is None:
             raise LogError(f"cannot read depth image {path}; it must be a 16-bit PNG or PGM")
         if img.ndim != 2 or img.dtype not in (np.uint16, np.float32):
