@@ -72,7 +72,9 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
         n_old = int(np.searchsorted(t[order], t[i] - REVISIT_S, side="right"))  # keyframes at least REVISIT_S older
         if n_old < 2:
             continue
-        if tree is None or n_old - tree_until >= 25:  # rebuilt as the earlier part grows (25 keyframes ≈ 5 m)
+        if tree is None or n_old - tree_until >= max(25, tree_until // 10):
+            # rebuilt as the earlier part grows (by 25 keyframes ≈ 5 m, or 10 % on a long log: ~70 builds for 5000
+            # keyframes instead of 200; the latest 10 % of the earlier keyframes wait for the next build)
             olds = [j for j in order[:n_old] if len(world[j])]
             pts = np.vstack([world[j] for j in olds]) if olds else np.zeros((0, 2))
             seen_from = (np.vstack([np.repeat(np.asarray(key_poses[j][:2], float)[None], len(world[j]), 0) for j in olds])
