@@ -149,7 +149,7 @@ class _Filter:
         through = math.log(c.z_through / self.z_max) if c.z_through > 0 else -math.inf
         searching = not self.found or self.lost_since >= 0
         ll = mcl.log_likelihoods(self.f, self.parts, beams, through, c.sigma_search if searching else c.sigma_hit,
-                                 searching)
+                                 searching, c.through_every)
         q = np.exp(ll / max(len(beams), 1))  # −inf → 0: per-beam geometric mean likelihood of each particle
         self.rec.update(float(np.sum(self.w * q)))
         temper = min(1.0, c.effective_beams / max(len(beams), 1))
@@ -214,14 +214,14 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        # a pose is claimed (first, or again after being lost) when the whole set has been tight for
-        # converged_updates updates in a row; it is kept while one mode holds most of the weight, tight, so that
-        # augmented MCL's random particles beside it (a share p_random of the set) do not make it lost
-        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw
-        held = (est.mode_weight >= cfg.converged_share and est.mode_xy <= cfg.converged_xy
+        # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
+        # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
+        # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
+        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        held = (est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and est.mode_xy <= cfg.converged_xy
                 and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
         if update:
-            flt.tight = flt.tight + 1 if whole and flt.rec.ratio >= cfg.lost_ratio else 0
+            flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0
         converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
         flt.tracking = converged
         if converged and not flt.found:
@@ -239,7 +239,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv_yaw)
                 if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
                     pred, coarse = pt, False
-            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse)
+            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
+                           cfg.refine_prior_laser if inp.source == "laser" else None)
             tracked = pose
         else:
             tracked = None
@@ -262,11 +263,12 @@ def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d if math.hypot(d[0], d[1]) > 1e-3 else None
 
 
-def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True) -> np.ndarray:
+def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True,
+            uniform: float | None = None) -> np.ndarray:
     """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: harder along the direction
     of travel (the narrow scan's blind direction in a corridor) than across it. `coarse`: from the filter's pose,
     coarse to fine (4σ, 2σ, σ); from the track's own prediction, which the odometry of one step hardly moves, fine
-    only (2σ, σ), so that furniture the map lacks has less pull."""
+    only (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""
     yaw = pred[2] + (math.atan2(step[1], step[0]) if step is not None else 0.0)
     c, s = math.cos(yaw), math.sin(yaw)
     along = cfg.refine_prior_along if step is not None else cfg.refine_prior_xy
@@ -274,6 +276,8 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
     w = np.zeros((3, 3))
     w[:2, :2] = r @ np.diag([along, cfg.refine_prior_xy]) @ r.T
     w[2, 2] = cfg.refine_prior_yaw
+    if uniform is not None:  # a wide scan: the same weak pull in every direction
+        w = np.eye(3) * uniform
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     pose = np.asarray(pred, float)
     levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
