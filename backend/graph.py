@@ -617,7 +617,8 @@ CHAIN_KINDS = ("match", "odom", "gyro", "motion")  # factors between consecutive
 # MAX_MATCH_VAR, 1 m / 1 rad), so a node it chains follows the front end's motion unless loops pull it elsewhere.
 WEAK_SIGMAS = np.array([1.0, 1.0, 1.0])
 CHAIN_MIN_INFO = 0.5  # a chain whose information is below this (m⁻², rad⁻²) in some direction gets the prior
-MAX_VAR = 1e6  # m², rad²: a covariance is clipped to this (a non-finite or negative variance becomes it)
+MAX_VAR = 1e2  # m², rad²: a covariance is clipped to this (a non-finite or negative variance becomes it)
+MIN_VAR = 1e-8  # m², rad²: … and to at least this (σ 0.1 mm, 0.006°: no scan match is surer)
 
 
 def _strong(info: np.ndarray) -> bool:
@@ -628,17 +629,19 @@ def _strong(info: np.ndarray) -> bool:
 
 
 def _finite_covariance(cov) -> np.ndarray:
-    """A symmetric positive-definite covariance: non-finite or out-of-range eigenvalues clipped to [1e-12, MAX_VAR]
-    (a NaN in a factor's covariance makes the whole linear system indeterminate)."""
+    """A symmetric positive-definite covariance a factor can use: a direction with a non-finite, zero or negative
+    variance carries no information (MAX_VAR; an indefinite matrix from a bad inverse is garbage there, not
+    certainty), the others are kept within [MIN_VAR, MAX_VAR]. A NaN makes the whole linear system indeterminate;
+    a variance of 1e-12 beside ordinary ones makes it too ill-conditioned for ISAM2's Cholesky factorisation."""
     c = np.asarray(cov, dtype=float)
     if np.all(np.isfinite(c)):
         w, v = np.linalg.eigh(0.5 * (c + c.T))
-        if w[0] > 0 and w[-1] <= MAX_VAR:
+        if w[0] >= MIN_VAR and w[-1] <= MAX_VAR:
             return c
     else:
         c = np.where(np.isfinite(c), c, 0.0) + np.diag(np.where(np.isfinite(np.diag(c)), 0.0, MAX_VAR))
         w, v = np.linalg.eigh(0.5 * (c + c.T))
-    w = np.clip(w, 1e-12, MAX_VAR)
+    w = np.where(w > 0, np.clip(w, MIN_VAR, MAX_VAR), MAX_VAR)
     return (v * w) @ v.T
 
 
