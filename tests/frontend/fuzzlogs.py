@@ -100,9 +100,13 @@ class Mutation:
             return bytes(d)
         if fmt == "clf":
             spans = carmen_numbers(data.decode("latin-1"))  # (one character a byte, whatever the bytes)
+            if not spans:
+                return data
             a, b = spans[min(len(spans) - 1, int(len(spans) * self.where))]
             return data[:a] + HOSTILE_NUMBERS[self.value % len(HOSTILE_NUMBERS)].encode() + data[b:]
         fields = (bag_length_fields if fmt == "bag" else mcap_length_fields)(data)
+        if not fields:  # (an earlier edit left no whole record)
+            return data
         at, f = fields[min(len(fields) - 1, int(len(fields) * self.where))]
         v = HOSTILE_LENGTHS[self.value % len(HOSTILE_LENGTHS)]
         d = bytearray(data)
