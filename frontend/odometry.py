@@ -34,8 +34,9 @@ from kosmap.frontend.params import StageConfig, param
 # position to the odometry (one wall in view), no correlative search or recovery (they slide onto the
 # known map). Measured on the simulator's office with a 70.6° 4.5 m 15 Hz scanner: default laser settings
 # 8.4 m ATE; these 0.14 m (odometry alone 0.26 m; front end alone 0.20 m). A starting point for KOS.
+# A narrow scan is held along-track anyway (prior_weight_along), so the scan-geometry degeneracy rule is off for it.
 NARROW_SCAN = {"prior_weight": 100.0, "prior_weight_along": 1000.0, "search_linear": 0.0, "search_angular_deg": 0.0,
-               "recovery_ratio": 0.0}
+               "recovery_ratio": 0.0, "degenerate_ratio": 0.0}
 
 
 @dataclass
@@ -381,13 +382,20 @@ class SubmapOdometry:
         pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior, W,
                                          cfg.gn_iterations, welsch, f.sigma)
         if has_odom and cfg.degenerate_ratio > 0:
-            extra = degeneracy_prior(info, cfg.degenerate_ratio, scan_geometry(pts, cfg.densify_max_gap), float(pred[2]))
+            geometry = scan_geometry(pts, cfg.densify_max_gap)
+            extra = degeneracy_prior(info, cfg.degenerate_ratio, geometry, float(pred[2]))
             if extra is not None:  # a corridor: solve again from the prediction, the odometry holding the weak direction
                 W = W + extra
                 p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, prior, prior, W,
                                         cfg.gn_iterations, welsch, c.sigma)
                 pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior,
                                                  W, cfg.gn_iterations, welsch, f.sigma)
+                # what the match tells the graph along the weak direction is only the scan's geometric share: the
+                # rest was the odometry's, which the graph has as its own factor (with its scale variable)
+                v = np.linalg.eigh(extra[:2, :2])[1][:, 1]
+                keep = geometry[0] / cfg.degenerate_ratio
+                info = info.copy()
+                info[:2, :2] -= (1.0 - keep) * float(v @ info[:2, :2] @ v) * np.outer(v, v)
         return np.asarray(pose, dtype=float), float(score), info
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
