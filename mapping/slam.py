@@ -218,7 +218,7 @@ class Slam:
         self.local.extend(map(float, res.pose))
         self.odom.extend(_NAN3 if odom_pose is None else map(float, odom_pose))
         self.matched.append(bool(res.matched))
-        self.health.scan(stamp_ns, len(points) >= self.ocfg.min_points, odom_pose is not None)
+        self.health.scan(stamp_ns, len(points) >= self.ocfg.min_points, odom_pose)
         if self.points is not None:
             self.points.append(np.asarray(points, dtype=np.float32))
         if self.select(res.pose, len(points)):

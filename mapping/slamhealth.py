@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 GAP_S = 2.0  # a stretch without usable scans (or without odometry) longer than this is reported
+STILL_M, STILL_DEG = 0.05, 2.0  # a gap across which the odometry moved less than this is a pause, not a blackout
 # A keyframe's scan fixes no position along some direction when its surface normals all but miss it: fewer than
 # this many points' worth of normal along the weakest direction (the smaller eigenvalue of Σ n·nᵀ, the point-to-line
 # information of Censi's ICP covariance, up to σ²). A bare corridor seen by a 180° laser: 0.4–0.7; the simulated
@@ -51,11 +52,13 @@ class HealthTracker:
         self.first: int | None = None
         self.last: int | None = None
         self.last_usable: int | None = None
+        self.last_usable_odom: np.ndarray | None = None
         self.odom_gap: tuple[int, int] | None = None  # (first scan without odometry, last one)
         self.degen: list | None = None  # [first stamp, last stamp, metres, last local pose]
         self.out = Stretches()
 
-    def scan(self, stamp_ns: int, usable: bool, has_odom: bool) -> None:
+    def scan(self, stamp_ns: int, usable: bool, odom_pose: np.ndarray | None) -> None:
+        """A scan: whether it has enough returns to match, and the wheel odometry at its stamp (None: none)."""
         stamp_ns = int(stamp_ns)
         if self.first is None:
             self.first = stamp_ns
@@ -63,10 +66,11 @@ class HealthTracker:
         self.out.unusable += not usable
         if usable:
             start = self.first if self.last_usable is None else self.last_usable
-            if (stamp_ns - start) * 1e-9 > GAP_S:
+            if (stamp_ns - start) * 1e-9 > GAP_S and _moved(self.last_usable_odom, odom_pose):
                 self.out.no_scans.append((start, stamp_ns))
             self.last_usable = stamp_ns
-        if self.expect_odom and not has_odom:
+            self.last_usable_odom = None if odom_pose is None else np.asarray(odom_pose, float)
+        if self.expect_odom and odom_pose is None:
             self.odom_gap = (self.odom_gap[0] if self.odom_gap else stamp_ns, stamp_ns)
         elif self.odom_gap is not None:
             self._close_odom(stamp_ns)
@@ -162,6 +166,14 @@ def weakest_structure(points: np.ndarray, k: int = 2, min_len: float = 0.1, max_
         return 0.0
     n = np.column_stack((-chord[ok, 1], chord[ok, 0])) / length[ok, None]
     return float(np.linalg.eigvalsh(n.T @ n)[0])
+
+
+def _moved(a: np.ndarray | None, b: np.ndarray | None) -> bool:
+    """The wheel odometry moved between two poses (more than STILL_M or STILL_DEG), or cannot tell: a logger that
+    records nothing while the robot stands (the Intel log's 2 s pauses) leaves no stretch to report."""
+    if a is None or b is None:
+        return True
+    return math.hypot(b[0] - a[0], b[1] - a[1]) > STILL_M or abs(math.remainder(b[2] - a[2], 2 * math.pi)) > math.radians(STILL_DEG)
 
 
 def _runs(ids: list[int]) -> list[list[int]]:
