@@ -37,7 +37,7 @@ class FrameStats:
     outliers: int = 0
     remaining: int = 0
     planes: int = 0
-    elapsed_ms: float = 0.0
+    elapsed_ms: float = 0.0  # CPU time of the calling thread in the filter (the kernels compiled beforehand: warmup)
     windows: int = 0  # FSPF+ search windows (FSPF: neighbourhoods), for profiling
     visited: int = 0  # pixels inside those windows, consumed or not
     bent: int = 0  # FSPF+ planes rejected as strips of curved surfaces
