@@ -18,6 +18,10 @@ BY_UNIT: dict[str, tuple[float | None, float | None, str]] = {
     "Hz": (None, 1000.0, "faster than any depth camera or laser (they run at 5-100 Hz)"),
     "s": (None, 3600.0, "an hour"),
     "m/m": (None, 10.0, "ten times the distance travelled"),
+    "m/s": (None, 10.0, "faster than any robot indoors"),
+    "m/s²": (None, 50.0, "five times gravity"),
+    "deg/s": (None, 3600.0, "ten turns a second"),
+    "deg/s²": (None, 36000.0, "ten turns a second, reached in a tenth of a second"),
     "rad/rad": (None, 10.0, "ten times the rotation"),
 }
 
@@ -67,6 +71,12 @@ BY_KEY: dict[str, tuple[float | None, float | None, str]] = {
     "localize.converged_updates": (None, 10 ** 6, "a million updates"),
     "localize.resample_interval": (None, 10 ** 6, "a million updates"),
     "localize.min_points": (None, 10 ** 6, "more returns than a scan has"),
+    "simulate.start_time": (None, 4.1e9, "the year 2100"),
+    "simulate.duration": (None, 7 * 86400.0, "a week"),
+    "simulate.depth_max_range": (None, 50.0, "no depth camera measures farther"),
+    "simulate.laser_range_max": (None, 300.0, "no 2D laser scanner measures farther"),
+    "simulate.laser_beams": (None, 10 ** 4, "more beams than any 2D laser scanner (a UTM-30LX has 1081)"),
+    "simulate.seed": (None, 2 ** 32 - 1, "the largest 32-bit seed"),
 }
 
 # Cell sizes: a grid of cells finer than a millimetre resolves nothing a range sensor measures (laser and depth
@@ -124,4 +134,6 @@ def _unit(unit: str) -> str:
 def _short(value: Any) -> str:
     """A value as the user gave it, shortened to a line."""
     text = repr(value)
-    return text if len(text) <= 80 else text[:60] + f"… ({len(value)} values)" if isinstance(value, (list, tuple)) else text[:80] + "…"
+    if len(text) <= 80:
+        return text
+    return text[:60] + (f"… ({len(value)} values)" if isinstance(value, (list, tuple)) else "…")
