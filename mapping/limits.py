@@ -85,6 +85,7 @@ CELL_KEYS = ("grid.resolution", "odometry.resolution", "odometry.coarse_resoluti
              "graph.loop_resolution", "localize.bin_xy", "odometry.search_linear_step")
 MIN_CELL_M = 0.001
 MAX_LEVELS = 64  # KOS levels: each is a scan per frame and a map (the thesis used 3)
+MAX_LIST = 1000  # any list-valued key (topics, tolerances, simulated IMU faults...)
 MAX_SUBMAP_CELLS = 10 ** 8  # one likelihood field of a submap: 400 MB of float32
 
 
@@ -95,6 +96,8 @@ def check_value(section: str, key: str, unit: str, value: Any) -> None:
     if dotted == "kos.levels" and len(items) > MAX_LEVELS:
         raise ConfigError(f"config [kos] levels has {len(items)} heights: at most {MAX_LEVELS} (each level is a scan "
                           f"per depth frame and a map)")
+    if isinstance(value, (list, tuple)) and len(value) > MAX_LIST:
+        raise ConfigError(f"config [{section}] {key} has {len(value)} values: at most {MAX_LIST}")
     for v in items:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue  # the stage's own check says what type it must be

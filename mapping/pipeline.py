@@ -11,7 +11,9 @@ compared (KOS vs laser vs blueprint), and metrics.json, the TUM trajectories, st
 and the report (mapping/report.py) are written.
 
 Ctrl-C (or a KeyboardInterrupt from `on_progress`) stops reading; what was read is mapped and written as
-usual, marked partial in metrics.json and the report.
+usual, marked partial in metrics.json and the report, unless the output folder holds a complete earlier build,
+which is then kept. Everything is written into a staging folder whose files replace the previous build's only
+when the build completes (mapping/outdir.py), so a failed, stopped or killed run leaves the folder as it was.
 """
 
 from __future__ import annotations
