@@ -46,7 +46,7 @@ from kosmap.frontend.odometry import OdometryConfig, scan_points_base
 from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms, yaw_to_quat
 from kosmap.mapping.config import Config, config_dict, write_config
 from kosmap.mapping.childproc import die_with_parent
-from kosmap.mapping.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
+from kosmap.mapping.framepool import FramePool, check_workers, default_workers, executor_peak_rss_mb, peak_rss_mb
 from kosmap.mapping.grid import GridBuilder, OccupancyGrid
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosscan import KOS_PREFIX, KosStream, KosStep, ScanRun
@@ -246,9 +246,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     log = Path(log)
     out = Path(out_dir)
     say = say or (lambda _m: None)
-    workers = default_workers() if workers is None else int(workers)
-    if workers < 0:
-        raise KosmapError(f"--workers {workers} must be 0 (serial, in this process) or more")
+    workers = default_workers() if workers is None else check_workers(int(workers))
     bcfg = cfg.build
     check_out(out)
     bp_grid = None
