@@ -13,7 +13,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 GAP_S = 2.0  # a stretch without usable scans (or without odometry) longer than this is reported
-STILL_M, STILL_DEG = 0.05, 2.0  # a gap across which the odometry moved less than this is a pause, not a blackout
 # A keyframe's scan fixes no position along some direction when its surface normals all but miss it: fewer than
 # this many points' worth of normal along the weakest direction (the smaller eigenvalue of Σ n·nᵀ, the point-to-line
 # information of Censi's ICP covariance, up to σ²). A bare corridor seen by a 180° laser: 0.4–0.7; the simulated
@@ -47,8 +46,11 @@ class Stretches:
 class HealthTracker:
     """Fed per scan and per keyframe by mapping/slam.py's Slam; `stretches` at the end."""
 
-    def __init__(self, expect_odom: bool = False) -> None:
+    def __init__(self, expect_odom: bool = False, still_m: float = 0.2, still_rad: float = math.radians(10.0)) -> None:
+        """`still_m`, `still_rad`: a gap in the scans across which the wheel odometry moved less than this (the
+        keyframe spacing, [graph] node_distance / node_angle_deg) lost no keyframe: a pause, not a blackout."""
         self.expect_odom = expect_odom
+        self.still = (still_m, still_rad)
         self.first: int | None = None
         self.last: int | None = None
         self.last_usable: int | None = None
@@ -66,7 +68,7 @@ class HealthTracker:
         self.out.unusable += not usable
         if usable:
             start = self.first if self.last_usable is None else self.last_usable
-            if (stamp_ns - start) * 1e-9 > GAP_S and _moved(self.last_usable_odom, odom_pose):
+            if (stamp_ns - start) * 1e-9 > GAP_S and _moved(self.last_usable_odom, odom_pose, *self.still):
                 self.out.no_scans.append((start, stamp_ns))
             self.last_usable = stamp_ns
             self.last_usable_odom = None if odom_pose is None else np.asarray(odom_pose, float)
@@ -168,12 +170,13 @@ def weakest_structure(points: np.ndarray, k: int = 2, min_len: float = 0.1, max_
     return float(np.linalg.eigvalsh(n.T @ n)[0])
 
 
-def _moved(a: np.ndarray | None, b: np.ndarray | None) -> bool:
-    """The wheel odometry moved between two poses (more than STILL_M or STILL_DEG), or cannot tell: a logger that
-    records nothing while the robot stands (the Intel log's 2 s pauses) leaves no stretch to report."""
+def _moved(a: np.ndarray | None, b: np.ndarray | None, still_m: float, still_rad: float) -> bool:
+    """The wheel odometry moved between two poses by more than `still_m` or `still_rad`, or cannot tell (no
+    odometry). A logger that pauses while the robot stands or creeps (the Intel log: 46 gaps of 2–3 s across which
+    the wheels moved 0–12 cm) leaves nothing to report."""
     if a is None or b is None:
         return True
-    return math.hypot(b[0] - a[0], b[1] - a[1]) > STILL_M or abs(math.remainder(b[2] - a[2], 2 * math.pi)) > math.radians(STILL_DEG)
+    return math.hypot(b[0] - a[0], b[1] - a[1]) > still_m or abs(math.remainder(b[2] - a[2], 2 * math.pi)) > still_rad
 
 
 def _runs(ids: list[int]) -> list[list[int]]:
