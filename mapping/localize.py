@@ -19,7 +19,7 @@ from kosmap.backend import mcl
 from kosmap.backend.likelihood_field import MapField, map_field
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
-from kosmap.frontend.matcher import gauss_newton, inlier_fraction
+from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
 from kosmap.mapping.localize_config import LocalizeConfig
 
 SEARCHING, TRACKING, LOST = 0, 1, 2  # per-pose status: not found yet, found, lost after having been found
@@ -129,12 +129,25 @@ class _Filter:
         self.found = False
         self.tight = 0  # filter updates in a row with a tight set
         self.tracking = False  # the last scan's pose was claimed
+        self.restarted = False  # a gap in the scans: the pose is searched for again as at the start
         self.lost_since = -1
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
             from kosmap.frontend.errors import ConfigError
 
             raise ConfigError(f"config [localize] odom_alpha = {cfg.odom_alpha!r} must be four numbers (α1..α4)")
+
+    def restart(self) -> None:
+        """The scans stopped for longer than max_gap_s: the robot may have been carried anywhere meanwhile. A global
+        set joins the particles (moved by the odometry over the gap at the next update, if any), and the pose must
+        be found again as at the start."""
+        self.parts = np.concatenate((self.parts, self.f.sample_free(self.global_n, self.rng)))
+        self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+        self.tight = 0
+        self.tracking = False
+        self.restarted = True
+        self.lost_since = self.updates
+        self.rec.w_slow = self.rec.w_fast = 0.0
 
     def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
         self.parts = mcl.sample_motion_odometry(self.parts, u0, u1, self.alphas, self.rng)
@@ -162,7 +175,7 @@ class _Filter:
 
     def resample(self, lost: bool) -> None:
         c = self.cfg
-        searching = not self.found or lost
+        searching = not self.found or lost or self.restarted
         n_max = self.global_n if searching else c.max_particles
         parts = mcl.kld_resample(self.parts, self.w, self.rec.p_random, self.f, c.min_particles, n_max, c.kld_err,
                                  c.kld_z, c.bin_xy, math.radians(c.bin_yaw_deg), self.rng)
@@ -195,9 +208,12 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     for i in range(n):
         pts = inp.points[i]
         u = inp.odom[i] if inp.has_odom else None
+        gap = i > 0 and inp.stamps[i] - inp.stamps[i - 1] > cfg.max_gap_s
+        if gap:
+            flt.restart()
         if inp.has_odom:
             d = se2.between(u_last, u)
-            update = i == 0 or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
+            update = i == 0 or gap or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
         else:
             update = True
         if update and len(pts) >= cfg.min_points:
@@ -226,6 +242,9 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         flt.tracking = converged
         if converged and not flt.found:
             flt.rec.w_slow = flt.rec.w_fast  # from here the long-term average is the tracking one, not the search's
+        if converged and flt.restarted:
+            flt.restarted = False
+            flt.rec.w_slow = flt.rec.w_fast
         if converged:
             flt.found = True
             flt.lost_since = -1
@@ -280,6 +299,12 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
         w = np.eye(3) * uniform
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     pose = np.asarray(pred, float)
+    if coarse and cfg.refine_search > 0:
+        # from the filter's pose, a few particles' spacing off: the best alignment within ±refine_search first
+        # (Olson's correlative search, frontend/matcher.py), then Gauss–Newton from there
+        pose, _ = correlative_search(f.match_coarse[1], f.origin[0], f.origin[1], f.resolution, p64, pose,
+                                     cfg.refine_search, f.resolution, math.radians(cfg.refine_search_deg),
+                                     math.radians(1.0), 0.0, 0.0)
     levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
     for fld, sigma in levels[0 if coarse else 1:]:
         pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),

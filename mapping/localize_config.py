@@ -49,6 +49,7 @@ class LocalizeConfig(StageConfig):
     alpha_slow: float = param(0.001, lo=0.0, hi=1.0, doc="long-term average of the measurement likelihood (AMCL recovery_alpha_slow)")
     alpha_fast: float = param(0.1, lo=0.0, hi=1.0, doc="short-term average (AMCL recovery_alpha_fast)")
     lost_ratio: float = param(0.2, lo=0.0, hi=1.0, doc="w_fast/w_slow below this: the pose is lost, and a global set is added to the particles")
+    max_gap_s: float = param(2.0, lo=0.0, lo_open=True, doc="scans this far apart in time: the robot may have been carried meanwhile, so a global set joins the particles and the pose must be found again", unit="s")
     # convergence
     converged_xy: float = param(0.25, lo=0.0, lo_open=True, doc="the spread of the particles' mode below which the pose counts as found", unit="m")
     converged_yaw_deg: float = param(10.0, lo=0.0, lo_open=True, doc="… and their heading spread", unit="deg")
@@ -60,6 +61,8 @@ class LocalizeConfig(StageConfig):
     refine_prior_xy: float = param(10.0, lo=0.0, doc="KOS: Gauss–Newton pull towards the predicted position, across the direction of travel (a tenth of [odometry] NARROW_SCAN's: the map is fixed and right, a SLAM submap is not)", unit="1/m²")
     refine_prior_along: float = param(100.0, lo=0.0, doc="… along it, ten times harder (a narrow scan sees one corridor wall, or a shelf before the wall the map has)", unit="1/m²")
     refine_prior_yaw: float = param(10.0, lo=0.0, doc="… towards the predicted heading", unit="1/rad²")
+    refine_search: float = param(0.3, lo=0.0, doc="where the refined track (re)starts at the filter's pose: a correlative search this far around it first (0 = none; the filter's mode is a few particle spacings wide)", unit="m")
+    refine_search_deg: float = param(10.0, lo=0.0, doc="… and this far in heading", unit="deg")
     refine_prior_laser: float = param(1.0, lo=0.0, doc="the pull in every direction for a laser's wide scan, which fixes the pose by itself ([odometry] prior_weight's default)", unit="1/m², 1/rad²")
     refine_gate_sigmas: float = param(6.0, lo=0.0, lo_open=True, doc="the refined track is restarted at the filter's pose when they differ by more than this many of the filter's spreads (at least converged_xy)")
     seed: int = param(0, lo=0, doc="random seed of the particle filter (a run is repeatable)")
