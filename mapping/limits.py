@@ -85,12 +85,14 @@ CELL_KEYS = ("grid.resolution", "odometry.resolution", "odometry.coarse_resoluti
              "graph.loop_resolution", "localize.bin_xy", "odometry.search_linear_step")
 MIN_CELL_M = 0.001
 MAX_LEVELS = 64  # KOS levels: each is a scan per frame and a map (the thesis used 3)
+MAX_COUNT = 10 ** 9  # a whole-number key without a limit of its own (compiled kernels take 64-bit integers)
 MAX_LIST = 1000  # any list-valued key (topics, tolerances, simulated IMU faults...)
 MAX_SUBMAP_CELLS = 10 ** 8  # one likelihood field of a submap: 400 MB of float32
 
 
-def check_value(section: str, key: str, unit: str, value: Any) -> None:
-    """ConfigError when `value` (a number, or a list of numbers) is not finite or lies beyond its limit."""
+def check_value(section: str, key: str, unit: str, value: Any, count: bool = False) -> None:
+    """ConfigError when `value` (a number, or a list of numbers) is not finite or lies beyond its limit. `count`: a
+    whole-number key (a count, a period in nodes...), never above MAX_COUNT unless its own limit says otherwise."""
     dotted = f"{section}.{key}"
     items = value if isinstance(value, (list, tuple)) else [value]
     if dotted == "kos.levels" and len(items) > MAX_LEVELS:
@@ -103,7 +105,8 @@ def check_value(section: str, key: str, unit: str, value: Any) -> None:
             continue  # the stage's own check says what type it must be
         if isinstance(v, float) and not math.isfinite(v):
             raise ConfigError(f"config [{section}] {key} = {_short(value)} is not a finite number; give a number")
-        lo, hi, why = BY_KEY.get(dotted) or BY_UNIT.get(unit, (None, None, ""))
+        lo, hi, why = BY_KEY.get(dotted) or BY_UNIT.get(unit) or (
+            (None, MAX_COUNT, "a billion: more than any run counts") if count else (None, None, ""))
         if dotted in CELL_KEYS and 0 < v < MIN_CELL_M:
             raise ConfigError(f"config [{section}] {key} = {v:g} m is too fine: the smallest cell is {MIN_CELL_M:g} m "
                               f"(range sensors measure to centimetres)")

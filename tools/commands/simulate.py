@@ -44,7 +44,8 @@ def _sim_config(config: Path | None, sets: list[str] | None, **flags):
             raise ConfigError(f"unknown simulator setting '{k}'; known: {', '.join(sorted(known))}")
     fields = {f.name: f for f in dataclasses.fields(SimConfig)}
     for k, v in values.items():  # finite, and within what sensors and robots allow (mapping/limits.py)
-        check_value("simulate", k, fields[k].metadata.get("unit", ""), v)
+        d = fields[k].default
+        check_value("simulate", k, fields[k].metadata.get("unit", ""), v, count=isinstance(d, int) and not isinstance(d, bool))
     try:
         return SimConfig(**values)
     except TypeError as e:
