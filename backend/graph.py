@@ -199,6 +199,7 @@ class PoseGraph:
         self.gyro_bias = 0.0  # rad/s, estimated in the final solve (`gyro_bias = "estimate"`): the latest block's
         self.gyro_biases = np.zeros(0)  # rad/s per bias block (gyro_bias_block_s) after a solve
         self._chain: dict[int, np.ndarray] = {}  # node i → information (3×3) of the factors between i − 1 and i
+        self._chain_from = 1  # nodes below this have been checked (_chain_new_nodes) and are no longer tracked
         self.weak_nodes: list[int] = []  # nodes a weak motion prior chains to the one before (nothing else did)
         self.solver_notes: list[tuple[int | None, str]] = []  # (node or None, what failed and what solved instead)
         self.factorization = "CHOLESKY"  # ISAM2's; QR after an indeterminate system (see _recover)
@@ -254,7 +255,7 @@ class PoseGraph:
         model = self._noise(sigmas, robust) if cov is None else gtsam.noiseModel.Gaussian.Covariance(cov)
         if cov is not None:
             sigmas = np.sqrt(np.diag(cov))
-        if kind in CHAIN_KINDS and b == a + 1:
+        if kind in CHAIN_KINDS and b == a + 1 and b >= self._chain_from:
             info = np.linalg.inv(cov) if cov is not None else np.diag(1.0 / np.asarray(sigmas, dtype=float) ** 2)
             self._chain[b] = self._chain.get(b, 0.0) + info
         fm = meas if online is None else online  # the factor's measurement (calibrated); the edge keeps the raw one
@@ -354,12 +355,14 @@ class PoseGraph:
         or are not finite: no keyframe is left floating (a node held by a yaw-only gyro factor alone makes ISAM2's
         Cholesky factorisation fail: 'Indeterminate linear system')."""
         for i in range(max(self.n - self.n_pending_nodes, 1), self.n):
-            info = self._chain.get(i)
+            info = self._chain.pop(i, None)
             if info is not None and _strong(info):
                 continue
             rel = self.initial.atPose2(i - 1).between(self.initial.atPose2(i))
             self._add("motion", i - 1, i, _xyth(rel), WEAK_SIGMAS, robust=False)
+            self._chain.pop(i, None)
             self.weak_nodes.append(i)
+        self._chain_from = self.n
 
     def _values(self) -> gtsam.Values:
         vals = gtsam.Values()
@@ -614,7 +617,8 @@ CHAIN_KINDS = ("match", "odom", "gyro", "motion")  # factors between consecutive
 # MAX_MATCH_VAR, 1 m / 1 rad), so a node it chains follows the front end's motion unless loops pull it elsewhere.
 WEAK_SIGMAS = np.array([1.0, 1.0, 1.0])
 CHAIN_MIN_INFO = 0.5  # a chain whose information is below this (m⁻², rad⁻²) in some direction gets the prior
-MAX_VAR = 1e6  # m², rad²: a covariance is clipped to this (a non-finite or negative variance becomes it)
+MAX_VAR = 1e2  # m², rad²: a covariance is clipped to this (a non-finite or negative variance becomes it)
+MIN_VAR = 1e-8  # m², rad²: … and to at least this (σ 0.1 mm, 0.006°: no scan match is surer)
 
 
 def _strong(info: np.ndarray) -> bool:
@@ -625,17 +629,19 @@ def _strong(info: np.ndarray) -> bool:
 
 
 def _finite_covariance(cov) -> np.ndarray:
-    """A symmetric positive-definite covariance: non-finite or out-of-range eigenvalues clipped to [1e-12, MAX_VAR]
-    (a NaN in a factor's covariance makes the whole linear system indeterminate)."""
+    """A symmetric positive-definite covariance a factor can use: a direction with a non-finite, zero or negative
+    variance carries no information (MAX_VAR; an indefinite matrix from a bad inverse is garbage there, not
+    certainty), the others are kept within [MIN_VAR, MAX_VAR]. A NaN makes the whole linear system indeterminate;
+    a variance of 1e-12 beside ordinary ones makes it too ill-conditioned for ISAM2's Cholesky factorisation."""
     c = np.asarray(cov, dtype=float)
     if np.all(np.isfinite(c)):
         w, v = np.linalg.eigh(0.5 * (c + c.T))
-        if w[0] > 0 and w[-1] <= MAX_VAR:
+        if w[0] >= MIN_VAR and w[-1] <= MAX_VAR:
             return c
     else:
         c = np.where(np.isfinite(c), c, 0.0) + np.diag(np.where(np.isfinite(np.diag(c)), 0.0, MAX_VAR))
         w, v = np.linalg.eigh(0.5 * (c + c.T))
-    w = np.clip(w, 1e-12, MAX_VAR)
+    w = np.where(w > 0, np.clip(w, MIN_VAR, MAX_VAR), MAX_VAR)
     return (v * w) @ v.T
 
 

@@ -33,7 +33,7 @@ from kosmap.frontend import se2
 @njit(cache=True)
 def _through_wall(dist, ox, oy, res, x, y, qx, qy, length):
     """True when the ray from (x, y) towards (qx, qy) meets an occupied cell within `length` metres: sphere
-    tracing on the distance field (each step as long as the distance to the nearest wall, at least half a cell)."""
+    tracing on the distance field (each step as long as the distance to the nearest wall, at least one cell)."""
     h, w = dist.shape
     r = math.hypot(qx - x, qy - y)
     if r <= 0.0 or length <= 0.0:
@@ -51,12 +51,12 @@ def _through_wall(dist, ox, oy, res, x, y, qx, qy, length):
         d = dist[iy, ix]
         if d <= 0.0:
             return True
-        t += max(d, 0.5 * res)
+        t += max(d, res)  # a wall is at least a cell thick: a step of one cell lands in it or short of it
     return False
 
 
 @njit(cache=True)
-def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, parts, pts, out):
+def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, every, parts, pts, out):
     h, w = table.shape
     n = pts.shape[0]
     for p in range(parts.shape[0]):
@@ -73,7 +73,7 @@ def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, parts,
         for k in range(n):
             qx = x + c * pts[k, 0] - s * pts[k, 1]
             qy = y + s * pts[k, 0] + c * pts[k, 1]
-            if through > -np.inf and _through_wall(dist, ox, oy, res, x, y, qx, qy,
+            if through > -np.inf and k % every == 0 and _through_wall(dist, ox, oy, res, x, y, qx, qy,
                                                     math.hypot(pts[k, 0], pts[k, 1]) - tol):
                 acc += through
                 continue
@@ -87,14 +87,14 @@ def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, parts,
 
 
 def log_likelihoods(field, parts: np.ndarray, pts: np.ndarray, through: float = -np.inf, tol: float = 0.0,
-                    search: bool = False) -> np.ndarray:
+                    search: bool = False, every: int = 1) -> np.ndarray:
     """Σ_k log p(z_k | x_p, m) of each particle (−inf where the particle is off the free cells). With `through`
     finite, an end point whose ray meets a wall more than `tol` before it (a reading longer than the map allows:
     the pose is wrong, or the map lacks an opening) scores `through` instead of the field's value; a reading shorter
     than the map allows (furniture, people) costs only the field's floor."""
     out = np.empty(len(parts))
     _log_likelihoods(field.log_table, field.distance, field.free, field.origin[0], field.origin[1], field.resolution,
-                     field.floor, float(through), float(tol), np.ascontiguousarray(parts, dtype=np.float64),
+                     field.floor, float(through), float(tol), max(int(every), 1), np.ascontiguousarray(parts, dtype=np.float64),
                      np.ascontiguousarray(pts, dtype=np.float64), out)
     return out
 

@@ -46,16 +46,21 @@ class Stretches:
 class HealthTracker:
     """Fed per scan and per keyframe by mapping/slam.py's Slam; `stretches` at the end."""
 
-    def __init__(self, expect_odom: bool = False) -> None:
+    def __init__(self, expect_odom: bool = False, still_m: float = 0.2, still_rad: float = math.radians(10.0)) -> None:
+        """`still_m`, `still_rad`: a gap in the scans across which the wheel odometry moved less than this (the
+        keyframe spacing, [graph] node_distance / node_angle_deg) lost no keyframe: a pause, not a blackout."""
         self.expect_odom = expect_odom
+        self.still = (still_m, still_rad)
         self.first: int | None = None
         self.last: int | None = None
         self.last_usable: int | None = None
+        self.last_usable_odom: np.ndarray | None = None
         self.odom_gap: tuple[int, int] | None = None  # (first scan without odometry, last one)
         self.degen: list | None = None  # [first stamp, last stamp, metres, last local pose]
         self.out = Stretches()
 
-    def scan(self, stamp_ns: int, usable: bool, has_odom: bool) -> None:
+    def scan(self, stamp_ns: int, usable: bool, odom_pose: np.ndarray | None) -> None:
+        """A scan: whether it has enough returns to match, and the wheel odometry at its stamp (None: none)."""
         stamp_ns = int(stamp_ns)
         if self.first is None:
             self.first = stamp_ns
@@ -63,10 +68,11 @@ class HealthTracker:
         self.out.unusable += not usable
         if usable:
             start = self.first if self.last_usable is None else self.last_usable
-            if (stamp_ns - start) * 1e-9 > GAP_S:
+            if (stamp_ns - start) * 1e-9 > GAP_S and _moved(self.last_usable_odom, odom_pose, *self.still):
                 self.out.no_scans.append((start, stamp_ns))
             self.last_usable = stamp_ns
-        if self.expect_odom and not has_odom:
+            self.last_usable_odom = None if odom_pose is None else np.asarray(odom_pose, float)
+        if self.expect_odom and odom_pose is None:
             self.odom_gap = (self.odom_gap[0] if self.odom_gap else stamp_ns, stamp_ns)
         elif self.odom_gap is not None:
             self._close_odom(stamp_ns)
@@ -162,6 +168,15 @@ def weakest_structure(points: np.ndarray, k: int = 2, min_len: float = 0.1, max_
         return 0.0
     n = np.column_stack((-chord[ok, 1], chord[ok, 0])) / length[ok, None]
     return float(np.linalg.eigvalsh(n.T @ n)[0])
+
+
+def _moved(a: np.ndarray | None, b: np.ndarray | None, still_m: float, still_rad: float) -> bool:
+    """The wheel odometry moved between two poses by more than `still_m` or `still_rad`, or cannot tell (no
+    odometry). A logger that pauses while the robot stands or creeps (the Intel log: 46 gaps of 2–3 s across which
+    the wheels moved 0–12 cm) leaves nothing to report."""
+    if a is None or b is None:
+        return True
+    return math.hypot(b[0] - a[0], b[1] - a[1]) > still_m or abs(math.remainder(b[2] - a[2], 2 * math.pi)) > still_rad
 
 
 def _runs(ids: list[int]) -> list[list[int]]:

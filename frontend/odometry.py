@@ -69,9 +69,9 @@ class OdometryConfig(StageConfig):
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
     densify_max_gap: float = param(0.3, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
     point_spacing: float = param(0.05, lo=0.0, doc="drop a return nearer than this to the last one kept, in scan order (0 = keep all)", unit="m")
-    degenerate_ratio: float = param(0.25, lo=0.0, hi=1.0, doc="a match whose weakest translational information is below "
-                                    "this × its strongest takes the missing information from the wheel-odometry "
-                                    "prediction, along that direction only (0 = off)")
+    degenerate_ratio: float = param(0.1, lo=0.0, hi=1.0, doc="a scan whose own surfaces fix one direction less than "
+                                    "this × the other (scan_geometry: the returns' normals) is held at the wheel-odometry "
+                                    "prediction along that direction (0 = off)")
 
 
 @dataclass
@@ -244,24 +244,51 @@ def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: floa
     return W
 
 
-def degeneracy_prior(info: np.ndarray, ratio: float) -> np.ndarray | None:
-    """The prior weight a degenerate match needs (Zhang, Kaess & Singh 2016, "On degeneracy of optimization-based
-    state estimation problems": leave the directions the measurements do not fix to the motion prediction).
+NORMAL_BASELINE = 0.1  # m: a normal from neighbours this far apart; a laser's ~1 cm range noise tilts it by < 10°
 
-    Along a bare corridor the scan fixes the lateral position and the heading; along the corridor its only pull
-    comes from where the walls' returns end, which moves with the sensor (the range or grazing-angle limit), so
-    matching drags every scan back onto the map it already has and the corridor shrinks (the simulated
-    long-corridor world, 180° laser: 41 m of corridor mapped as 12 m). With the translational information
-    (yaw marginalised) having eigenvalues λ_lo ≤ λ_hi, a match with λ_lo < ratio·λ_hi gets (ratio·λ_hi − λ_lo)
-    added along the weak eigenvector: the odometry then weighs there as much as the scan may at most be
-    trusted less than in its best direction. None when the match is well conditioned."""
+
+def scan_geometry(points: np.ndarray, max_gap: float = 0.3) -> tuple[float, np.ndarray]:
+    """How well the scan's own surfaces fix its translation: the normals of its returns (from each return's two
+    neighbours in scan order, where both lie within `max_gap`) summed as Σ n nᵀ; returns (smallest / largest
+    eigenvalue, the weakest direction in the scan's frame). A bare corridor's walls all face across it: ratio ≈ 0
+    along it, whatever the field's gradients say where the walls' returns end (Censi 2008's point-to-line view)."""
+    points = thin(points, NORMAL_BASELINE / 2)
+    if len(points) < 3:
+        return 0.0, np.array([1.0, 0.0])
+    d = points[2:] - points[:-2]
+    ok = (np.hypot(*(points[1:-1] - points[:-2]).T) <= max_gap) & (np.hypot(*(points[2:] - points[1:-1]).T) <= max_gap)
+    d = d[ok]
+    nrm = np.hypot(d[:, 0], d[:, 1])
+    d = d[nrm > 1e-9] / nrm[nrm > 1e-9, None]
+    if len(d) < 3:
+        return 0.0, np.array([1.0, 0.0])
+    n = np.column_stack((-d[:, 1], d[:, 0]))
+    w, v = np.linalg.eigh(n.T @ n)
+    return float(max(w[0], 0.0) / w[1]) if w[1] > 0 else 0.0, v[:, 0]
+
+
+def degeneracy_prior(info: np.ndarray, ratio: float, geometry: tuple[float, np.ndarray], yaw: float) -> np.ndarray | None:
+    """The prior that holds a degenerate match's weak direction towards the motion prediction (Zhang, Kaess & Singh
+    2016, "On degeneracy of optimization-based state estimation problems": leave the directions the measurements
+    do not fix to the prediction).
+
+    Along a bare corridor the scan fixes the lateral position and the heading; along the corridor the field's only
+    pull comes from where the walls' returns end, which moves with the sensor (the range or grazing-angle limit),
+    so matching drags every scan back onto the map it already has and the corridor shrinks (the simulated
+    long-corridor world: 41 m of corridor mapped as 8–12 m). The scan's own surfaces (`geometry`, scan_geometry:
+    g = weakest / strongest, and the weakest direction v in the scan frame) say how far to trust the match along v:
+    with g below `ratio` the prediction is weighted there by λ_hi · (ratio / g − 1) (λ_hi: the match's strongest
+    translational information), nothing at g = ratio, a constraint as g → 0. None when g ≥ ratio."""
     from kosmap.frontend.matcher import translation_information
 
-    lo, hi, v = translation_information(info)
-    if hi <= 0 or lo >= ratio * hi:
+    g, v_scan = geometry
+    if g >= ratio:
         return None
+    _, hi, _ = translation_information(info)
+    c, s = math.cos(yaw), math.sin(yaw)
+    v = np.array([c * v_scan[0] - s * v_scan[1], s * v_scan[0] + c * v_scan[1]])
     extra = np.zeros((3, 3))
-    extra[:2, :2] = (ratio * hi - lo) * np.outer(v, v)
+    extra[:2, :2] = hi * (ratio / max(g, 1e-3) - 1.0) * np.outer(v, v)
     return extra
 
 
@@ -346,13 +373,20 @@ class SubmapOdometry:
         pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior, W,
                                          cfg.gn_iterations, welsch, f.sigma)
         if has_odom and cfg.degenerate_ratio > 0:
-            extra = degeneracy_prior(info, cfg.degenerate_ratio)
+            geometry = scan_geometry(pts, cfg.densify_max_gap)
+            extra = degeneracy_prior(info, cfg.degenerate_ratio, geometry, float(pred[2]))
             if extra is not None:  # a corridor: solve again from the prediction, the odometry holding the weak direction
                 W = W + extra
                 p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, prior, prior, W,
                                         cfg.gn_iterations, welsch, c.sigma)
                 pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior,
                                                  W, cfg.gn_iterations, welsch, f.sigma)
+                # what the match tells the graph along the weak direction is only the scan's geometric share: the
+                # rest was the odometry's, which the graph has as its own factor (with its scale variable)
+                v = np.linalg.eigh(extra[:2, :2])[1][:, 1]
+                keep = geometry[0] / cfg.degenerate_ratio
+                info = info.copy()
+                info[:2, :2] -= (1.0 - keep) * float(v @ info[:2, :2] @ v) * np.outer(v, v)
         return np.asarray(pose, dtype=float), float(score), info
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:

@@ -37,11 +37,13 @@ class FrameStats:
     outliers: int = 0
     remaining: int = 0
     planes: int = 0
-    elapsed_ms: float = 0.0
+    elapsed_ms: float = 0.0  # CPU time of the calling thread in the filter (the kernels compiled beforehand: warmup)
     windows: int = 0  # FSPF+ search windows (FSPF: neighbourhoods), for profiling
     visited: int = 0  # pixels inside those windows, consumed or not
     bent: int = 0  # FSPF+ planes rejected as strips of curved surfaces
     thin: int = 0  # FSPF+ planes rejected as too thin to define a plane
+    split: int = 0  # FSPF+ planes that bridged parallel surfaces, shrunk to one of them
+    grown: int = 0  # FSPF+ pixels attached to a neighbour's plane after the stop (region growing)
 
     def _pct(self, n: int) -> float:
         return 100.0 * n / self.pixels if self.pixels else 0.0
@@ -172,6 +174,16 @@ def fit_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     return n, float(-n @ c)
 
 
+def refit_from_moments(count: np.ndarray, s: np.ndarray, ss: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """plane_from_moments for P planes at once (count P, Σp P×3, Σppᵀ P×3×3), rectified: (normals P×3, offsets P)."""
+    c = s / count[:, None]
+    cov = ss / count[:, None, None] - c[:, :, None] * c[:, None, :]
+    n = np.linalg.eigh(cov)[1][:, :, 0]
+    d = -np.einsum("ij,ij->i", n, c)
+    flip = np.where(d < 0, -1.0, 1.0)
+    return n * flip[:, None], d * flip
+
+
 def rectify(n: np.ndarray, d: float | np.ndarray):
     """Flip (n, d) so the normal faces the camera at the origin: d > 0 (thesis: rectified normal)."""
     n = np.asarray(n, dtype=np.float64)
@@ -287,7 +299,16 @@ def _moments_nb(points, plane, P):
 
 
 @njit(cache=True)
-def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
+def _plane_rms_nb(n, s, ss, cov):
+    """The RMS distance of n points (Σp s, Σppᵀ ss) from their least-squares plane (cov: scratch 3×3)."""
+    for a in range(3):
+        for b in range(3):
+            cov[a, b] = ss[a, b] / n - (s[a] / n) * (s[b] / n)
+    return np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))
+
+
+@njit(cache=True)
+def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m, rms_step):
     """Greedy merge in `order` (largest first): returns each plane's group and the groups' refitted (n, d).
 
     Written element by element: numba compiles array slices, np.outer and its argsort with shape checks and
@@ -299,6 +320,7 @@ def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
     g_ss = np.zeros((P, 3, 3))
     g_n = np.zeros((P, 3))
     g_d = np.zeros(P)
+    g_rms0 = np.zeros(P)  # the residual RMS of each group's first (largest) patch: merging may not raise it by more
     c = np.empty(3)
     cov = np.empty((3, 3))
     G = 0
@@ -308,17 +330,32 @@ def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
         c0, c1, c2 = s[i, 0] / cnt[i], s[i, 1] / cnt[i], s[i, 2] / cnt[i]
         n0, n1, n2 = normals[i, 0], normals[i, 1], normals[i, 2]
         hit = -1
+        rms_i = -1.0
         for g in range(G):
             if g_n[g, 0] * n0 + g_n[g, 1] * n1 + g_n[g, 2] * n2 < cos_max:
                 continue
             e1 = abs(g_n[g, 0] * c0 + g_n[g, 1] * c1 + g_n[g, 2] * c2 + g_d[g])
-            e2 = abs(n0 * (g_s[g, 0] / g_cnt[g]) + n1 * (g_s[g, 1] / g_cnt[g]) + n2 * (g_s[g, 2] / g_cnt[g]) + offsets[i])
-            if e1 < offset_m and e2 < offset_m:
+            if e1 >= offset_m:
+                continue
+            # one surface: the merged plane's residual RMS hardly exceeds its parts' (parallel surfaces a few cm
+            # apart would raise it by their separation; the far centroid's distance to the patch's own plane
+            # is no test: a small patch's normal is uncertain by degrees)
+            if rms_i < 0:
+                rms_i = _plane_rms_nb(cnt[i], s[i], ss[i], cov)
+            n_m = g_cnt[g] + cnt[i]
+            for a in range(3):
+                c[a] = (g_s[g, a] + s[i, a]) / n_m
+            for a in range(3):
+                for b in range(3):
+                    cov[a, b] = (g_ss[g, a, b] + ss[i, a, b]) / n_m - c[a] * c[b]
+            rms_m = np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))
+            if rms_m <= max(g_rms0[g], rms_i) + rms_step:
                 hit = g
                 break
         g = G if hit < 0 else hit
         group[i] = g
         if hit < 0:
+            g_rms0[g] = rms_i if rms_i >= 0 else _plane_rms_nb(cnt[i], s[i], ss[i], cov)
             g_cnt[g] = cnt[i]
             for a in range(3):
                 g_s[g, a] = s[i, a]
@@ -338,7 +375,7 @@ def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
         for a in range(3):
             for b in range(3):
                 cov[a, b] = g_ss[g, a, b] / g_cnt[g] - c[a] * c[b]
-        _, v = np.linalg.eigh(cov)
+        w, v = np.linalg.eigh(cov)
         nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
         d = -(nx * c[0] + ny * c[1] + nz * c[2])
         if d < 0:
@@ -349,12 +386,16 @@ def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m):
 
 
 def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=None,
-                 drop_classes: tuple[int, ...] = (), moments: tuple | None = None, inplace: bool = False) -> Planes:
+                 drop_classes: tuple[int, ...] = (), moments: tuple | None = None, inplace: bool = False,
+                 rms_step: float | None = None) -> Planes:
     """Merge coplanar patches (thesis future work; Biswas's polygon merging): one refitted plane each.
 
-    Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg
-    and where each one's centroid lies within offset_m of the other's plane; the merged plane is refitted by
-    least squares from the accumulated moments (Σp, Σppᵀ) and rectified. `classify_fn(normals, offsets)`
+    Greedy, largest patch first: a patch joins the first merged plane whose normal is within angle_deg, whose
+    plane passes within offset_m of the patch's centroid, and which stays one surface with it: the residual RMS
+    of the merged points about their plane exceeds the patch's and the group's first (largest) patch's by at
+    most rms_step (default offset_m / 50; FSPF+ passes ε/20). Two parallel surfaces, a table and a box top,
+    raise it by about their separation; the bound is the first patch's, so that small steps cannot add up.
+    The merged plane is refitted by least squares from the accumulated moments (Σp, Σppᵀ) and rectified. `classify_fn(normals, offsets)`
     gives the merged planes' classes (default: the class of their largest patch); planes whose class is in
     drop_classes are dropped. `moments` (count P, Σp P×3, Σppᵀ P×3×3) saves a pass over the points;
     `inplace` lets it reuse the input's point arrays (the input must not be used afterwards).
@@ -367,7 +408,7 @@ def merge_planes(planes: Planes, angle_deg: float, offset_m: float, classify_fn=
     group, normals, offsets = _merge_nb(np.ascontiguousarray(planes.normals, dtype=np.float64),
                                         np.ascontiguousarray(planes.offsets, dtype=np.float64), cnt, s, ss,
                                         np.argsort(-cnt, kind="stable"), float(np.cos(np.radians(angle_deg))),
-                                        float(offset_m))
+                                        float(offset_m), float(offset_m) / 50.0 if rms_step is None else float(rms_step))
     G = len(offsets)
     if G == P:
         return planes

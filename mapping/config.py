@@ -110,7 +110,9 @@ def _section(name: str, values: dict[str, Any], where: str, from_set: frozenset[
                               f"{_list_example(f'{name}.{key}', default, f'{name}.{key}' in from_set)}")
     fields = {f.name: f for f in dataclasses.fields(cls)}
     for key, value in values.items():  # finite, and within what sensors and buildings allow (mapping/limits.py)
-        check_value(name, key, fields[key].metadata.get("unit", ""), value)
+        d = fields[key].default
+        check_value(name, key, fields[key].metadata.get("unit", ""), value,
+                    count=isinstance(d, int) and not isinstance(d, bool))
     try:
         return cls(**values)
     except TypeError as e:  # a value of a type the dataclass cannot take

@@ -18,6 +18,10 @@ BY_UNIT: dict[str, tuple[float | None, float | None, str]] = {
     "Hz": (None, 1000.0, "faster than any depth camera or laser (they run at 5-100 Hz)"),
     "s": (None, 3600.0, "an hour"),
     "m/m": (None, 10.0, "ten times the distance travelled"),
+    "m/s": (None, 10.0, "faster than any robot indoors"),
+    "m/s²": (None, 50.0, "five times gravity"),
+    "deg/s": (None, 3600.0, "ten turns a second"),
+    "deg/s²": (None, 36000.0, "ten turns a second, reached in a tenth of a second"),
     "rad/rad": (None, 10.0, "ten times the rotation"),
 }
 
@@ -67,6 +71,12 @@ BY_KEY: dict[str, tuple[float | None, float | None, str]] = {
     "localize.converged_updates": (None, 10 ** 6, "a million updates"),
     "localize.resample_interval": (None, 10 ** 6, "a million updates"),
     "localize.min_points": (None, 10 ** 6, "more returns than a scan has"),
+    "simulate.start_time": (None, 4.1e9, "the year 2100"),
+    "simulate.duration": (None, 7 * 86400.0, "a week"),
+    "simulate.depth_max_range": (None, 50.0, "no depth camera measures farther"),
+    "simulate.laser_range_max": (None, 300.0, "no 2D laser scanner measures farther"),
+    "simulate.laser_beams": (None, 10 ** 4, "more beams than any 2D laser scanner (a UTM-30LX has 1081)"),
+    "simulate.seed": (None, 2 ** 32 - 1, "the largest 32-bit seed"),
 }
 
 # Cell sizes: a grid of cells finer than a millimetre resolves nothing a range sensor measures (laser and depth
@@ -75,22 +85,28 @@ CELL_KEYS = ("grid.resolution", "odometry.resolution", "odometry.coarse_resoluti
              "graph.loop_resolution", "localize.bin_xy", "odometry.search_linear_step")
 MIN_CELL_M = 0.001
 MAX_LEVELS = 64  # KOS levels: each is a scan per frame and a map (the thesis used 3)
+MAX_COUNT = 10 ** 9  # a whole-number key without a limit of its own (compiled kernels take 64-bit integers)
+MAX_LIST = 1000  # any list-valued key (topics, tolerances, simulated IMU faults...)
 MAX_SUBMAP_CELLS = 10 ** 8  # one likelihood field of a submap: 400 MB of float32
 
 
-def check_value(section: str, key: str, unit: str, value: Any) -> None:
-    """ConfigError when `value` (a number, or a list of numbers) is not finite or lies beyond its limit."""
+def check_value(section: str, key: str, unit: str, value: Any, count: bool = False) -> None:
+    """ConfigError when `value` (a number, or a list of numbers) is not finite or lies beyond its limit. `count`: a
+    whole-number key (a count, a period in nodes...), never above MAX_COUNT unless its own limit says otherwise."""
     dotted = f"{section}.{key}"
     items = value if isinstance(value, (list, tuple)) else [value]
     if dotted == "kos.levels" and len(items) > MAX_LEVELS:
         raise ConfigError(f"config [kos] levels has {len(items)} heights: at most {MAX_LEVELS} (each level is a scan "
                           f"per depth frame and a map)")
+    if isinstance(value, (list, tuple)) and len(value) > MAX_LIST:
+        raise ConfigError(f"config [{section}] {key} has {len(value)} values: at most {MAX_LIST}")
     for v in items:
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             continue  # the stage's own check says what type it must be
         if isinstance(v, float) and not math.isfinite(v):
             raise ConfigError(f"config [{section}] {key} = {_short(value)} is not a finite number; give a number")
-        lo, hi, why = BY_KEY.get(dotted) or BY_UNIT.get(unit, (None, None, ""))
+        lo, hi, why = BY_KEY.get(dotted) or BY_UNIT.get(unit) or (
+            (None, MAX_COUNT, "a billion: more than any run counts") if count else (None, None, ""))
         if dotted in CELL_KEYS and 0 < v < MIN_CELL_M:
             raise ConfigError(f"config [{section}] {key} = {v:g} m is too fine: the smallest cell is {MIN_CELL_M:g} m "
                               f"(range sensors measure to centimetres)")
@@ -124,4 +140,6 @@ def _unit(unit: str) -> str:
 def _short(value: Any) -> str:
     """A value as the user gave it, shortened to a line."""
     text = repr(value)
-    return text if len(text) <= 80 else text[:60] + f"… ({len(value)} values)" if isinstance(value, (list, tuple)) else text[:80] + "…"
+    if len(text) <= 80:
+        return text
+    return text[:60] + (f"… ({len(value)} values)" if isinstance(value, (list, tuple)) else "…")

@@ -19,7 +19,7 @@ from kosmap.backend import mcl
 from kosmap.backend.likelihood_field import MapField, map_field
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
-from kosmap.frontend.matcher import gauss_newton, inlier_fraction
+from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
 from kosmap.mapping.localize_config import LocalizeConfig
 
 SEARCHING, TRACKING, LOST = 0, 1, 2  # per-pose status: not found yet, found, lost after having been found
@@ -129,12 +129,25 @@ class _Filter:
         self.found = False
         self.tight = 0  # filter updates in a row with a tight set
         self.tracking = False  # the last scan's pose was claimed
+        self.restarted = False  # a gap in the scans: the pose is searched for again as at the start
         self.lost_since = -1
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
             from kosmap.frontend.errors import ConfigError
 
             raise ConfigError(f"config [localize] odom_alpha = {cfg.odom_alpha!r} must be four numbers (α1..α4)")
+
+    def restart(self) -> None:
+        """The scans stopped for longer than max_gap_s: the robot may have been carried anywhere meanwhile. A global
+        set joins the particles (moved by the odometry over the gap at the next update, if any), and the pose must
+        be found again as at the start."""
+        self.parts = np.concatenate((self.parts, self.f.sample_free(self.global_n, self.rng)))
+        self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+        self.tight = 0
+        self.tracking = False
+        self.restarted = True
+        self.lost_since = self.updates
+        self.rec.w_slow = self.rec.w_fast = 0.0
 
     def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
         self.parts = mcl.sample_motion_odometry(self.parts, u0, u1, self.alphas, self.rng)
@@ -149,7 +162,7 @@ class _Filter:
         through = math.log(c.z_through / self.z_max) if c.z_through > 0 else -math.inf
         searching = not self.found or self.lost_since >= 0
         ll = mcl.log_likelihoods(self.f, self.parts, beams, through, c.sigma_search if searching else c.sigma_hit,
-                                 searching)
+                                 searching, c.through_every)
         q = np.exp(ll / max(len(beams), 1))  # −inf → 0: per-beam geometric mean likelihood of each particle
         self.rec.update(float(np.sum(self.w * q)))
         temper = min(1.0, c.effective_beams / max(len(beams), 1))
@@ -162,7 +175,7 @@ class _Filter:
 
     def resample(self, lost: bool) -> None:
         c = self.cfg
-        searching = not self.found or lost
+        searching = not self.found or lost or self.restarted
         n_max = self.global_n if searching else c.max_particles
         parts = mcl.kld_resample(self.parts, self.w, self.rec.p_random, self.f, c.min_particles, n_max, c.kld_err,
                                  c.kld_z, c.bin_xy, math.radians(c.bin_yaw_deg), self.rng)
@@ -195,9 +208,12 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     for i in range(n):
         pts = inp.points[i]
         u = inp.odom[i] if inp.has_odom else None
+        gap = i > 0 and inp.stamps[i] - inp.stamps[i - 1] > cfg.max_gap_s
+        if gap:
+            flt.restart()
         if inp.has_odom:
             d = se2.between(u_last, u)
-            update = i == 0 or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
+            update = i == 0 or gap or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
         else:
             update = True
         if update and len(pts) >= cfg.min_points:
@@ -214,18 +230,21 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        # a pose is claimed (first, or again after being lost) when the whole set has been tight for
-        # converged_updates updates in a row; it is kept while one mode holds most of the weight, tight, so that
-        # augmented MCL's random particles beside it (a share p_random of the set) do not make it lost
-        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw
-        held = (est.mode_weight >= cfg.converged_share and est.mode_xy <= cfg.converged_xy
+        # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
+        # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
+        # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
+        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        held = (est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and est.mode_xy <= cfg.converged_xy
                 and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
         if update:
-            flt.tight = flt.tight + 1 if whole and flt.rec.ratio >= cfg.lost_ratio else 0
+            flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0
         converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
         flt.tracking = converged
         if converged and not flt.found:
             flt.rec.w_slow = flt.rec.w_fast  # from here the long-term average is the tracking one, not the search's
+        if converged and flt.restarted:
+            flt.restarted = False
+            flt.rec.w_slow = flt.rec.w_fast
         if converged:
             flt.found = True
             flt.lost_since = -1
@@ -239,7 +258,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv_yaw)
                 if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
                     pred, coarse = pt, False
-            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse)
+            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
+                           cfg.refine_prior_laser if inp.source == "laser" else None)
             tracked = pose
         else:
             tracked = None
@@ -262,11 +282,12 @@ def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return d if math.hypot(d[0], d[1]) > 1e-3 else None
 
 
-def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True) -> np.ndarray:
+def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True,
+            uniform: float | None = None) -> np.ndarray:
     """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: harder along the direction
     of travel (the narrow scan's blind direction in a corridor) than across it. `coarse`: from the filter's pose,
     coarse to fine (4σ, 2σ, σ); from the track's own prediction, which the odometry of one step hardly moves, fine
-    only (2σ, σ), so that furniture the map lacks has less pull."""
+    only (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""
     yaw = pred[2] + (math.atan2(step[1], step[0]) if step is not None else 0.0)
     c, s = math.cos(yaw), math.sin(yaw)
     along = cfg.refine_prior_along if step is not None else cfg.refine_prior_xy
@@ -274,8 +295,16 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
     w = np.zeros((3, 3))
     w[:2, :2] = r @ np.diag([along, cfg.refine_prior_xy]) @ r.T
     w[2, 2] = cfg.refine_prior_yaw
+    if uniform is not None:  # a wide scan: the same weak pull in every direction
+        w = np.eye(3) * uniform
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     pose = np.asarray(pred, float)
+    if coarse and cfg.refine_search > 0:
+        # from the filter's pose, a few particles' spacing off: the best alignment within ±refine_search first
+        # (Olson's correlative search, frontend/matcher.py), then Gauss–Newton from there
+        pose, _ = correlative_search(f.match_coarse[1], f.origin[0], f.origin[1], f.resolution, p64, pose,
+                                     cfg.refine_search, f.resolution, math.radians(cfg.refine_search_deg),
+                                     math.radians(1.0), 0.0, 0.0)
     levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
     for fld, sigma in levels[0 if coarse else 1:]:
         pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),

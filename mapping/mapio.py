@@ -208,6 +208,9 @@ def read_blueprint(path: str | Path, scale: float | None = None, dark: float = 0
                        f"a map_server .yaml that names it with its resolution")
     if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not scale > 0 or not np.isfinite(scale):
         raise MapError(f"blueprint scale {scale!r} must be a positive number of metres per pixel")
+    if not MIN_RESOLUTION <= scale <= MAX_RESOLUTION:
+        raise MapError(f"--blueprint-scale {scale:g} m/pixel is not a floor plan's: give one between {MIN_RESOLUTION:g} "
+                       f"and {MAX_RESOLUTION:g} m/pixel")
     walls = img < dark * 255.0
     if alpha is not None:
         walls &= alpha > 0.5

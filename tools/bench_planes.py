@@ -1,4 +1,4 @@
-"""Benchmark: FSPF+ and FSPF (numba and numpy paths) beside pyransac3d, ms per frame on one core.
+"""Benchmark: FSPF+ and FSPF (numba and numpy paths) beside pyransac3d and Open3D, ms per frame on one core.
 
     .venv/bin/python -m kosmap.tools.bench_planes [--sim-frames 12] [--real-frames 20] [--ransac-frames 4]
 
@@ -6,7 +6,8 @@ Frames: simulated 512×424 Kinect v2 frames (tools/simulate when it is there, el
 of tools/boxroom.py) and real 640×480 TUM fr1_xyz frames. ε = 5, 10, 20 mm; everything else at the thesis's
 real-time configuration (Table 5.4: nMin 40, Ω 60, Δ 0.5 m, β 3, 90 % analysed). pyransac3d fits one plane
 (100 iterations) to the same frame's eligible points. Writes docs/bench/planes.json and planes.md; the
-ratios are against pyransac3d measured in the same run.
+ratios are against pyransac3d measured in the same run. The real-frame section (tools/planes_real.py)
+scores FSPF+ and Open3D on the labelled mOSD table and times both on every real dataset.
 """
 
 from __future__ import annotations
@@ -140,6 +141,7 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--ransac-frames", type=int, default=4, help="frames for pyransac3d (it is slow)")
     ap.add_argument("--numpy-frames", type=int, default=4, help="frames for the numpy-only paths (slow)")
     ap.add_argument("--repeats", type=int, default=5, help="runs per frame for the numba paths; the fastest counts")
+    ap.add_argument("--no-real", action="store_true", help="skip the real-frame section (labelled mOSD, Open3D)")
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "bench")
     args = ap.parse_args(argv)
     pin = pin_one_core()
@@ -163,11 +165,16 @@ def main(argv: list[str] | None = None) -> dict:
                 r = time_method(use, method, backend, eps, dcfg, args.repeats if backend == "numba" else 1, **kw)
                 r["speedup_vs_pyransac3d"] = base["median_ms"] / r["median_ms"]
                 results.append({"frames": set_name, "eps_mm": eps * 1e3, "method": label, **r})
+    real = {"labelled": [], "timing": [], "open3d": ""}
+    if not args.no_real:
+        from kosmap.tools.planes_real import have_open3d, labelled_rows, timing_rows
+
+        real = {"labelled": labelled_rows(data_dir()), "timing": timing_rows(data_dir()), "open3d": have_open3d()}
     meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "python": platform.python_version(), "machine": platform.machine(),
             "cpu_pinning": pin, "load_average": os.getloadavg(), "sim_source": sim_source, "repeats": args.repeats,
             "config": "thesis real-time (Table 5.4) but ε; FSPF: Biswas's (n_max 2000, l 80, η 60 px, α_in 0.8)",
             "targets_ms_512x424_eps20": TARGETS_MS}
-    out = {"meta": meta, "results": results}
+    out = {"meta": meta, "results": results, "real": real}
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "planes.json").write_text(json.dumps(out, indent=2))
     md = _markdown(out)
@@ -207,6 +214,14 @@ def _markdown(out: dict) -> str:
               "On this shared 2-core machine the medians moved by up to ±30 % between runs (FSPF+ default at ε = 20 mm: "
               "4.5–5.9 ms in the last four runs, 4.55 and 5.33 ms with the final code); a row far off its neighbours at "
               "another ε is a run disturbed by other jobs."]
+    real = out.get("real") or {}
+    if real.get("labelled") or real.get("timing"):
+        from kosmap.tools.planes_real import markdown
+
+        lines += markdown(real["labelled"], real["timing"], real.get("open3d", ""))
+    lines += ["", "Open3D is the optional extra `bench` (`pip install '.[bench]'`, open3d ≥ 0.18); its wheel needs "
+              "the system library libusb-1.0 (Debian: `apt install libusb-1.0-0`). Without it the Open3D rows are "
+              "left out."]
     return "\n".join(lines) + "\n"
 
 

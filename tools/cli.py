@@ -98,17 +98,24 @@ def main(argv: list[str] | None = None) -> int:
         sig.restore()
 
 
-def _run(argv: list[str] | None, sig: _Signals) -> int:
-    import typer
+def _invoke(argv: list[str] | None) -> int:
+    """The command line run by typer; its exit code."""
+    import typer  # (here, not at the top: a Ctrl-C while it loads is an interruption like any other)
 
     try:
         code = make_app()(args=argv, prog_name="kosmap", standalone_mode=False)  # the exit code, or None
-        if isinstance(code, int) and not isinstance(code, bool) and code:
-            if code == 130:  # typer's answer to a KeyboardInterrupt in a command (it prints nothing)
-                print("kosmap: interrupted", file=sys.stderr)
-            return code
     except typer.TyperException as e:  # a usage error: one line (click's is a box of six or more)
         return _usage_error(e)
+    if isinstance(code, int) and not isinstance(code, bool) and code:
+        if code == 130:  # typer's answer to a KeyboardInterrupt in a command (it prints nothing)
+            print("kosmap: interrupted", file=sys.stderr)
+        return code
+    return 0
+
+
+def _run(argv: list[str] | None, sig: _Signals) -> int:
+    try:
+        return _invoke(argv)
     except SystemExit as e:
         if e.code == 130:  # typer's answer to a KeyboardInterrupt in a command (it prints nothing)
             print("kosmap: interrupted", file=sys.stderr)

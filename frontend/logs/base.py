@@ -96,8 +96,7 @@ class LogReader(ABC):
             if why is not None:
                 self._bad_sample(rec.topic, why, rec.stamp_ns)
                 return None
-            return rec
-        return self._guard.check(rec)
+        return self._guard.check(rec)  # (an Imu: its stamp)
 
     def _bad_sample(self, topic: str, why: str, stamp_ns: int) -> None:
         bad = self._bad_imu

@@ -41,14 +41,36 @@ def _name_ns(stem: str) -> int | None:
     return int(sec) * 1_000_000_000 + (int(frac.ljust(9, "0")) if frac else 0)
 
 
-def depth_files(folder: Path) -> list[Path]:
-    """The depth images of a folder (or of its `depth/` subfolder), in numeric/natural order."""
+# images whose names say they are not depth: colour, labels, masks, segmentations (the NYU/SUN/ScanNet layouts)
+NOT_DEPTH = re.compile(r"rgb|colou?r|label|mask|seg|semantic|instance", re.IGNORECASE)
+
+
+def depth_files(folder: Path, pattern: str | None = None) -> tuple[list[Path], list[Path]]:
+    """The depth images of a folder (or of its `depth/` subfolder), in numeric/natural order, and the images
+    skipped by name (NOT_DEPTH). With `pattern` (a glob, e.g. "*_depth.png") exactly the files it matches."""
     for d in (folder, folder / "depth"):
-        files = [p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES and "rgb" not in p.name.lower()
-                 and "color" not in p.name.lower()] if d.is_dir() else []
-        if files:
-            return sorted(files, key=_natural)
-    return []
+        if not d.is_dir():
+            continue
+        if pattern:
+            images = [p for p in d.glob(pattern) if p.is_file()]
+            skipped: list[Path] = []
+        else:
+            images = [p for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES]
+            skipped = [p for p in images if NOT_DEPTH.search(p.name)]
+            images = [p for p in images if not NOT_DEPTH.search(p.name)]
+        if images:
+            return sorted(images, key=_natural), skipped
+    return [], []
+
+
+METRES_PER_UNIT_KEYS = ("depth_units", "depth_unit", "meters_per_unit", "metres_per_unit", "depth_unit_m")
+UNITS_PER_METRE_KEYS = ("units_per_meter", "units_per_metre", "depth_factor", "depth_scale_factor", "factor")
+
+
+def units_per_metre(value: float) -> float:
+    """A depth scale in either convention as image units per metre: a value below 1 is metres per unit
+    (RealSense's depth_scale 0.001), one of 1 or more units per metre (1000 = millimetres, 5000 = TUM)."""
+    return 1.0 / value if 0 < value < 1 else value
 
 
 def read_camera_file(path: str | Path, default_scale: float | None = 1000.0) -> tuple[dict, float | None]:
@@ -83,21 +105,27 @@ def read_camera_file(path: str | Path, default_scale: float | None = 1000.0) -> 
     for k in ("width", "height"):
         if k in data:
             cam[k] = int(data[k])
+    # depth_scale in either convention (units_per_metre); a named key removes the doubt
+    key = next((k for k in ("depth_scale", *METRES_PER_UNIT_KEYS, *UNITS_PER_METRE_KEYS) if k in data), None)
     try:
-        scale = float(data["depth_scale"]) if "depth_scale" in data else default_scale
+        scale = float(data[key]) if key is not None else default_scale
     except (ValueError, TypeError) as e:
-        raise LogError(f"camera file {p}: depth_scale {data['depth_scale']!r} is not a number ({e})") from e
+        raise LogError(f"camera file {p}: {key} {data[key]!r} is not a number ({e})") from e
     if not (cam["fx"] > 0 and cam["fy"] > 0) or (scale is not None and not 0 < scale < np.inf):
-        raise LogError(f"camera file {p}: fx, fy and depth_scale must be positive")
+        raise LogError(f"camera file {p}: fx, fy and {key or 'depth_scale'} must be positive")
+    if scale is not None and key in METRES_PER_UNIT_KEYS:
+        scale = 1.0 / scale
+    elif scale is not None and key == "depth_scale":
+        scale = units_per_metre(scale)
     return cam, scale
 
 
 def check_depth_scale(scale: float | None, option: str = "--depth-scale") -> float | None:
     """The depth scale if it is a positive finite number (None: not given); a one-line error otherwise."""
     if scale is not None and not 0 < scale < np.inf:
-        raise LogError(f"{option} {scale:g} must be a positive number of image units per metre "
-                       f"(1000 = millimetres, 5000 = TUM)")
-    return scale
+        raise LogError(f"{option} {scale:g} must be a positive number: image units per metre "
+                       f"(1000 = millimetres, 5000 = TUM) or, below 1, metres per unit (0.001 = millimetres)")
+    return None if scale is None else units_per_metre(scale)
 
 
 def scale_words(scale: float) -> str:
@@ -128,13 +156,19 @@ class ImageFolder(LogReader):
     format = "depth image folder"
 
     def __init__(self, path: str | Path, camera_file: str | Path | None = None, depth_scale: float | None = None,
-                 fps: float = 30.0, frame_id: str = FRAME_ID) -> None:
+                 fps: float = 30.0, frame_id: str = FRAME_ID, pattern: str | None = None) -> None:
         super().__init__(Path(path))
         if not self.path.is_dir():
             raise LogError(f"{self.path} is not a folder of depth images")
-        self.files = depth_files(self.path)
+        self.files, named = depth_files(self.path, pattern)
         if not self.files:
-            raise LogError(f"{self.path} has no depth images ({', '.join(IMAGE_SUFFIXES)}), nor a depth/ subfolder with them")
+            what = f"no file matching --glob {pattern}" if pattern else \
+                f"no depth images ({', '.join(IMAGE_SUFFIXES)}, not named {NOT_DEPTH.pattern})"
+            raise LogError(f"{self.path} has {what}, nor a depth/ subfolder with them")
+        if named:
+            self._warn(f"skipped {len(named)} images named as colour, labels or masks (e.g. {named[0].name}); "
+                       f"--glob PATTERN selects the depth images explicitly")
+        self.not_depth: list[str] = []  # images skipped when read: 8-bit or colour, not depth
         cf = Path(camera_file) if camera_file else find_camera_file(self.path)
         self.camera_file = cf
         self.intrinsics: dict | None = None
@@ -164,14 +198,21 @@ class ImageFolder(LogReader):
         notes = [f"camera file {self.camera_file}, depth_scale {self.depth_scale:g} per metre"] if self.camera_file else []
         return LogInfo(self.path, self.format, self.stamps_ns[0], self.stamps_ns[-1], topics, notes=notes)
 
-    def read_image(self, path: Path) -> np.ndarray:
+    def read_image(self, path: Path) -> np.ndarray | None:
         import cv2
 
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        except cv2.error as e:  # e.g. a header claiming more pixels than OpenCV decodes (2^30)
+            raise LogError(f"cannot read depth image {path} ({str(e).strip().splitlines()[-1]}); check the file") from e
         if img is None:
             raise LogError(f"cannot read depth image {path}; it must be a 16-bit PNG or PGM")
-        if img.ndim != 2 or img.dtype not in (np.uint16, np.float32):
-            raise LogError(f"{path} is not a single-channel 16-bit depth image ({img.dtype}, shape {img.shape})")
+        if img.ndim != 2 or img.dtype not in (np.uint16, np.float32):  # 8-bit or colour: not depth, skipped
+            if not self.not_depth:
+                self._warn(f"skipping images that are not depth (8-bit or colour), first {path.name} "
+                           f"({img.dtype}, shape {img.shape}); --glob PATTERN selects the depth images")
+            self.not_depth.append(path.name)
+            return None
         return img
 
     def camera(self, shape: tuple[int, int]) -> CameraModel | None:
@@ -184,6 +225,11 @@ class ImageFolder(LogReader):
         sent_info = False
         for path, t in zip(self.files, self.stamps_ns):
             img = self.read_image(path)
+            if img is None:
+                if len(self.not_depth) == len(self.files):
+                    raise LogError(f"{self.path}: {path.name} is not a single-channel 16-bit depth image, nor is any "
+                                   f"other of its {len(self.files)} images; give the folder of depth images or --glob")
+                continue
             if not sent_info and INFO_TOPIC in want:
                 cam = self.camera(img.shape)
                 if cam is not None:

@@ -49,7 +49,9 @@ class McapLog(LogReader):
         self.truncated = False
         self._cut_said = False  # the truncation warning is given once (other warnings may come before it)
         self._damage: Exception | None = None  # what stopped a linear read
-        self._bad_chunks = 0  # chunks found damaged (CRC, decompression, records): skipped or read per `on_damage`
+        self._bad_chunk_at: set[tuple] = set()  # damaged chunks (CRC, decompression, records), by where and when
+        self._hits = 0  # damaged chunks met by all reads (one read that meets any and yields nothing is an error)
+        self._first_damage = ""
         try:
             self._summary = make_reader(_Bounded(self._file)).get_summary()
         except _DAMAGE:
@@ -177,18 +179,32 @@ class McapLog(LogReader):
             self._chunk_damage(None, chunk.message_start_time, chunk.message_end_time, _ChunkFault(str(e), False))
             return []
 
+    @property
+    def _bad_chunks(self) -> int:
+        return len(self._bad_chunk_at)
+
+    def _nothing_left(self) -> None:
+        """LogError when damaged chunks left not one message of the wanted topics."""
+        raise LogError(f"{self.path.name} is damaged: {self._bad_chunks} chunk(s) are unreadable ({self._first_damage}) "
+                       f"and no message of the wanted topics is left; re-copy or re-record it")
+
     def _chunk_damage(self, pos: int | None, start_ns: int, end_ns: int, fault: _ChunkFault) -> bool:
         """A damaged chunk, as `on_damage` says: "fail" raises LogError, else one warning with its time range each
         (the first few) and True when it is to be read as it is ("read"; a CRC mismatch only: a chunk that does not
         decompress or parse has nothing to read)."""
-        self._bad_chunks += 1
+        self._hits += 1
         at = f" at byte {pos}" if pos is not None else ""
         span = f"messages from t={start_ns * 1e-9:.3f} s to t={end_ns * 1e-9:.3f} s"
         what = f"the chunk{at} ({span}) is damaged ({fault})"
+        if not self._bad_chunk_at:
+            self._first_damage = f"the first: {what[4:]}"
         if self.on_damage == "fail":
             raise LogError(f"{self.path.name}: {what}; --set topics.on_damage=skip maps without it, =read reads it "
                            f"as it is")
         read = self.on_damage == "read" and fault.crc
+        if (start_ns, end_ns, str(fault)) in self._bad_chunk_at:  # (met again by another read: warned once)
+            return read
+        self._bad_chunk_at.add((start_ns, end_ns, str(fault)))
         if self._bad_chunks <= 5:
             self._warn(f"{self.path.name}: {what}; its messages are {'read as they are' if read else 'skipped'} "
                        f"(--set topics.on_damage=skip|read|fail): re-copy the log, or check it with `mcap doctor`")
@@ -216,8 +232,13 @@ class McapLog(LogReader):
         ahead = read_ahead(_in_log_time_order(fh, self._summary, topics, batched, self._chunk_damage), size=_nbytes,
                            batch=512 << 10, depth=2)
         self._ahead.append(ahead)
+        n, hits = 0, self._hits
         try:
-            yield from ahead
+            for item in ahead:
+                n += 1
+                yield item
+            if not n and self._hits > hits:
+                self._nothing_left()
         except _DAMAGE as e:
             raise LogError(f"{self.path.name} is damaged inside ({type(e).__name__}: {e}); run `mcap doctor` on it") from e
         finally:
@@ -244,7 +265,9 @@ class McapLog(LogReader):
             ti.count += 1
             start = message.log_time if start is None else min(start, message.log_time)
             end = message.log_time if end is None else max(end, message.log_time)
-        if self.truncated and not counts:  # damage, not topic names, is why there is nothing to map
+        if (self.truncated or self._bad_chunks) and not counts:  # damage, not topic names, is why nothing is left
+            if self._bad_chunks:
+                self._nothing_left()
             raise LogError(_nothing_read(self._file, self.path.name, self._damage))
         notes = ["truncated: the file ends before its summary; counts are of the messages before the damage"] if self.truncated else []
         return LogInfo(self.path, self.format, start or 0, end or 0, list(counts.values()), self.truncated, notes)

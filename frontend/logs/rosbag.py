@@ -202,8 +202,9 @@ class Ros1Bag(LogReader):
         self._index_error: Exception | None = None
         self._index_pos: int | None = None  # from the bag header, once the linear read has seen it
         self._cut_said = False  # the truncation warning is given once, by the first read
-        self._bad_chunks = 0  # chunks skipped as damaged (they do not decompress, or are not where the index says)
-        self._bad_records = 0  # records inside chunks skipped as garbled
+        self._bad_chunk_at: set[int] = set()  # chunks skipped as damaged (do not decompress, not where the index says)
+        self._bad_record_at: set[str] = set()  # records inside chunks skipped as garbled
+        self._hits = 0  # damage met by all reads (one read that meets any and yields nothing is an error)
         try:
             self._reader = Reader(self.path)
             self._reader.open()
@@ -226,15 +227,22 @@ class Ros1Bag(LogReader):
                 pass
 
     # -- damage ----------------------------------------------------------------------------------------------------
+    @property
+    def _bad_chunks(self) -> int:
+        return len(self._bad_chunk_at)
+
     def _damaged_chunk(self, pos: int, span: tuple[int, int] | None, detail: str) -> None:
         """A chunk that is skipped: one warning each (with its time range where the index gives it) for the first
         few, then one that counts them."""
-        self._bad_chunks += 1
+        self._hits += 1
         self.truncated = True  # (the summary's flag: what was read is not the whole log)
         when = f"messages from t={span[0] * 1e-9:.3f} s to t={span[1] * 1e-9:.3f} s" if span else "its messages"
         if self.on_damage == "fail":  # ("read": a bag's chunk has no CRC of its own, so damage is what cannot be read)
             raise LogError(f"{self.path.name}: the chunk at byte {pos} ({when}) is damaged ({detail}); "
                            f"--set topics.on_damage=skip maps without it")
+        if pos in self._bad_chunk_at:  # (met again by another read: warned and counted once)
+            return
+        self._bad_chunk_at.add(pos)
         if self._bad_chunks <= _CHUNK_WARNINGS:
             self._warn(f"{self.path.name}: the chunk at byte {pos} is damaged ({detail}); {when} are skipped and the "
                        f"rest is read: re-copy the bag, or check it with `rosbag check`")
@@ -244,16 +252,17 @@ class Ros1Bag(LogReader):
 
     def _damaged_record(self, where: str) -> None:
         """A record inside a chunk that does not parse (the chunk's data is garbled there): counted, one warning."""
-        self._bad_records += 1
+        self._hits += 1
         self.truncated = True
-        if self._bad_records == 1:
+        self._bad_record_at.add(where)
+        if len(self._bad_record_at) == 1:
             self._warn(f"{self.path.name}: {where} is garbled; such records are skipped (the bag is damaged there: "
                        f"re-copy it, or check it with `rosbag check`)")
 
     def _nothing_left(self) -> None:
         """LogError when damage left not one message of the wanted topics."""
-        raise LogError(f"{self.path.name} is damaged: {self._bad_chunks} chunk(s) and {self._bad_records} record(s) "
-                       f"are unreadable and no message of the wanted topics is left; re-copy or re-record it")
+        raise LogError(f"{self.path.name} is damaged: {self._bad_chunks} chunk(s) and {len(self._bad_record_at)} "
+                       f"record(s) are unreadable and no message of the wanted topics is left; re-copy or re-record it")
 
     # -- indexed read ------------------------------------------------------------------------------------------------
     def _indexed(self, topics) -> Iterator[tuple[int, str, str, bytes]]:
@@ -266,7 +275,7 @@ class Ros1Bag(LogReader):
         connmap = {c.id: c for c in r.connections}
         spans = {ci.pos: (ci.start_time, ci.end_time) for ci in r.chunk_infos}
         conns = [c for c in r.connections if topics is None or c.topic in topics]
-        current, buf, bad, n = None, b"", set(), 0
+        current, buf, bad, n, hits = None, b"", set(), 0, self._hits
         for e in heapq.merge(*(r.indexes[c.id] for c in conns)):
             if e.chunk_pos in bad:
                 continue
@@ -291,7 +300,7 @@ class Ros1Bag(LogReader):
                 continue
             n += 1
             yield t, c.topic, c.msgtype, raw
-        if not n and (bad or self._bad_records):
+        if not n and self._hits > hits:
             self._nothing_left()
 
     def _chunk_at(self, data, pos: int) -> bytes:
@@ -313,6 +322,7 @@ class Ros1Bag(LogReader):
         conns: dict[int, tuple[str, str]] = {}
         walk = _Walk()
         st = _Tally()
+        hits = self._hits
         for pos, hdr, body in _top_records(data, len(_MAGIC), walk):
             op = hdr.get("op", b"\0")[:1]
             if op == bytes([_OP_HEADER]):
@@ -334,7 +344,7 @@ class Ros1Bag(LogReader):
             yield from self._inner(inner, pos, conns, topics, st)
             if inner.garbled is not None and walk.stopped_at != pos:  # (in a cut chunk, the cut: said below)
                 self._damaged_record(f"a record inside the chunk at byte {pos} ({inner.garbled})")
-        if not st.total and (self._bad_chunks or self._bad_records):
+        if not st.total and self._hits > hits:
             self._nothing_left()
         cut = _cut(len(data), self._index_pos, walk.stopped_at, st.chunks)
         if cut is not None:

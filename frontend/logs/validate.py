@@ -70,7 +70,8 @@ class RecordGuard:
         if isinstance(rec, CameraModel):
             why = camera_problem(rec)
             if why:
-                return self._skip(rec, why, stamp, "check the driver's calibration; the field-of-view model ([depth] fov_h_deg, fov_v_deg) serves the images")
+                return self._skip(rec, why, stamp, "check the driver's calibration; the field-of-view model "
+                                                   "([depth] fov_h_deg, fov_v_deg) serves the images")
             self._camera_size[rec.frame_id] = (rec.width, rec.height)
             return rec
         if isinstance(rec, DepthFrame):
@@ -93,9 +94,10 @@ class RecordGuard:
                               "a topic's image size must not change: map each part of the log on its own")
         cw, ch = self._camera_size.get(rec.frame_id, (img.shape[1], img.shape[0]))
         if abs(img.shape[1] * ch - img.shape[0] * cw) > 0.01 * cw * ch:  # (camera_for scales a same-aspect info)
-            self._count(f"the depth images on {rec.topic} are {img.shape[1]}×{img.shape[0]} pixels, the camera info of "
-                        f"{rec.frame_id} says {cw}×{ch}, another aspect: its intrinsics do not fit these images and "
-                        f"the field-of-view model ([depth] fov_h_deg, fov_v_deg) is used: check the driver's calibration", rec.topic, "aspect")
+            self._count(f"the depth images on {rec.topic} are {img.shape[1]}×{img.shape[0]} pixels, the camera info "
+                        f"of {rec.frame_id} says {cw}×{ch}, another aspect: its intrinsics do not fit these images "
+                        f"and the field-of-view model ([depth] fov_h_deg, fov_v_deg) is used: check the driver's "
+                        f"calibration", rec.topic, "aspect")
         return rec
 
     def _odometry(self, rec: Odometry):
@@ -114,9 +116,10 @@ class RecordGuard:
             # Bridged: the pose continues from the last one (no motion across the jump), the rest shifted with it.
             b.offset = se2.compose(b.fixed, se2.inverse(raw))
             fixed = b.fixed.copy()
-            self._count(f"odometry on {rec.topic} jumps {dist:.1f} m in {dt:.3f} s (first at t={rec.stamp_ns * 1e-9:.3f} "
-                        f"s), faster than any robot drives ({MAX_SPEED:g} m/s); such jumps are bridged as if the robot "
-                        f"stood still across them: check the odometry driver (a reset or glitch)", rec.topic, "jump")
+            self._count(f"odometry on {rec.topic} jumps {dist:.1f} m in {dt:.3f} s (first at "
+                        f"t={rec.stamp_ns * 1e-9:.3f} s), faster than any robot drives ({MAX_SPEED:g} m/s); such "
+                        f"jumps are bridged as if the robot stood still across them: check the odometry driver (a "
+                        f"reset or glitch)", rec.topic, "jump")
         b.stamp_ns, b.raw, b.fixed = rec.stamp_ns, raw, fixed
         if b.offset is None:
             return rec

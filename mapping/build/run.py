@@ -25,7 +25,7 @@ from kosmap.mapping.config import Config, write_config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.mapio import read_blueprint
 from kosmap.mapping.report import frames_figure, trajectory_figure, write_report
-from kosmap.mapping.runtime.framepool import FramePool, default_workers, executor_peak_rss_mb, peak_rss_mb
+from kosmap.mapping.runtime.framepool import FramePool, check_workers, default_workers, executor_peak_rss_mb, peak_rss_mb
 from kosmap.mapping.runtime.outdir import SPILL_PREFIX, check_out, claim, commit, discard, holds_complete_run
 from kosmap.mapping.runtime.slamproc import RemoteFeed
 
@@ -71,9 +71,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     cfg = cfg or Config()
     log, out = Path(log), Path(out_dir)
     say = say or (lambda _m: None)
-    workers = default_workers() if workers is None else int(workers)
-    if workers < 0:
-        raise KosmapError(f"--workers {workers} must be 0 (serial, in this process) or more")
+    workers = default_workers() if workers is None else check_workers(int(workers))
     check_out(out)
     # everything that can be refused is refused before the folder is touched
     bp_grid = None if blueprint is None else read_blueprint(blueprint, blueprint_scale, cfg.compare.blueprint_dark)

@@ -119,6 +119,18 @@ def _frame_loop(k: int) -> int:
     return k
 
 
+def check_workers(workers: int) -> int:
+    """`workers` when it is 0 or more and at most 4 × the cores this process may use (more processes only share the
+    same cores, each with its own memory); KosmapError otherwise."""
+    most = 4 * default_workers()
+    if workers < 0:
+        raise KosmapError(f"--workers {workers} must be 0 (serial, in this process) or more")
+    if workers > most:
+        raise KosmapError(f"--workers {workers} is more than 4 × the {default_workers()} core(s) this process may use: "
+                          f"give at most {most}")
+    return int(workers)
+
+
 def default_workers() -> int:
     """All the cores this process may use."""
     try:
@@ -133,8 +145,7 @@ class FramePool:
 
     def __init__(self, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos_cfg: KosConfig, workers: int = 0,
                  in_flight: int | None = None) -> None:
-        if workers < 0:
-            raise KosmapError(f"--workers {workers} must be 0 (serial) or more")
+        check_workers(workers)
         self.configs = (fspf_cfg, depth_cfg, kos_cfg)
         self.workers = int(workers)
         self.in_flight = max(1, in_flight if in_flight is not None else 3 * max(1, self.workers))

@@ -81,17 +81,19 @@ def test_a_bad_line_is_skipped_and_named(ring, tmp_path, case):
     assert all(len(s.ranges) == 181 and s.angle_increment > 0 for s in scans)
 
 
-def test_one_malformed_odom_line_keeps_all_the_other_odometry(ring, tmp_path):
-    """A log whose only bad ODOM line is `ODOM 1 2` still has ODOM lines: the laser lines' poses are not used as
-    its odometry, and every good ODOM line is (the reported failure kept none)."""
-    _, lines = ring
-    lines = list(lines)
+def test_one_malformed_odom_line_does_not_discard_the_laser_lines_odometry(ring, tmp_path):
+    """A log whose odometry is in its FLASER lines (no ODOM lines) plus one malformed `ODOM 1 2`: that line does not
+    make the log one with ODOM lines of its own, so the laser lines' poses stay its odometry (the reported failure
+    kept none: 97 odometry factors became 0)."""
+    log, _ = ring
+    lines = carmen_lines(log.scans[:N], log.odom[:N], odom_lines=False)
     lines.insert(5, "ODOM 1 2")
-    with open_log(_write(tmp_path, lines)) as log:
-        assert log.info().count("/odom") == N
-        odom = [r for r in log.read(["/odom"]) if isinstance(r, Odometry)]
+    with open_log(_write(tmp_path, lines)) as lg:
+        assert lg.info().count("/odom") == N
+        odom = [r for r in lg.read(["/odom"]) if isinstance(r, Odometry)]
     assert len(odom) == N
-    assert "line 6" in log.warnings[0]
+    np.testing.assert_allclose([[o.x, o.y] for o in odom], log.odom[:N, :2], atol=1e-5)
+    assert "line 6 (3 fields where an ODOM line has at least 8)" in lg.warnings[0]
 
 
 def _with_jump(lines, at: int, dx: float) -> list[str]:

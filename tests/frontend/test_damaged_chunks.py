@@ -159,3 +159,23 @@ def test_slam_on_a_bag_with_a_damaged_chunk_completes_with_a_warning(tmp_path, c
     assert f"the chunk at byte {pos} is damaged" in stdout + err
     m = json.loads((out / "metrics.json").read_text())
     assert np.isfinite(m["ate"]["rmse"]) and m["ate"]["rmse"] < 0.3
+
+
+def test_damage_is_counted_once_over_several_reads(tmp_path):
+    """info() and read() of an unindexed bag both walk it: seven damaged chunks are counted as seven, not fourteen."""
+    whole = tmp_path / "whole.bag"
+    laser_bag(whole)
+    data = whole.read_bytes()
+    chunks = bag_chunks(data)
+    assert len(chunks) >= 9
+    for _, start, length in chunks[1:8]:  # (the first holds the connection records: without it nothing decodes)
+        data = flip(data, start + length // 2)
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(drop_index(data))
+    with open_log(bad) as log:
+        log.info()
+        list(log.read())
+        list(log.read(["/odom"]))
+    per_chunk = [w for w in log.warnings if "is damaged" in w]
+    assert len(per_chunk) == 5  # the first five one by one, then one warning counting them all
+    assert log.warnings[-1] == "bad.bag: in all, 7 damaged chunks were skipped"

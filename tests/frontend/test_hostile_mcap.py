@@ -159,3 +159,21 @@ def test_on_damage_fail_from_the_cli_is_one_line(tmp_path, capsys):
     code = main(["slam", str(bad), "--out", str(tmp_path / "out"), "--set", "topics.on_damage=fail"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "is damaged (its CRC" in err[0], err
+
+
+@pytest.mark.parametrize("indexed", [True, False])
+def test_mcap_whose_every_chunk_is_damaged_is_one_line(tmp_path, capsys, indexed):
+    whole = tmp_path / "whole.mcap"
+    small_mcap(whole)
+    data = whole.read_bytes()
+    chunks = mcap_chunks(data)
+    for pos in chunks:
+        at, length = chunk_payload(data, pos)
+        data = flip(data, at + length // 2)
+    bad = _write(tmp_path, data if indexed else without_summary(data))
+    with pytest.raises(LogError, match=rf"bad\.mcap is damaged: {len(chunks)} chunk\(s\) are unreadable .* no message"):
+        read_all(bad)
+    code = main(["slam", str(bad), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("kosmap: error: bad.mcap is damaged"), err
+    assert not (tmp_path / "out").exists()

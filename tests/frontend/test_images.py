@@ -51,3 +51,14 @@ def test_normal_quaternions_turn_x_onto_the_normal():
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     q = normal_quaternions(n)
     assert np.allclose(Rotation.from_quat(q).apply([1.0, 0, 0]), n, atol=1e-9)
+
+
+def test_depth_image_whose_header_claims_10_10_pixels_is_one_line(tmp_path):
+    """OpenCV refuses a PGM header claiming 100000×100000 pixels with cv2.error: a LogError naming the file."""
+    d = tmp_path / "seq" / "depth"
+    d.mkdir(parents=True)
+    cv2.imwrite(str(d / "1305031102.160407.png"), np.full((6, 8), 5000, np.uint16))
+    (d / "1305031102.226738.pgm").write_bytes(b"P5\n100000 100000\n65535\n" + bytes(1000))
+    log = ImageFolder(tmp_path / "seq")
+    with pytest.raises(LogError, match=r"cannot read depth image .*1305031102\.226738\.pgm \(.*\); check the file"):
+        list(log.read())

@@ -143,3 +143,43 @@ def test_transform_with_non_finite_numbers_is_skipped(tmp_path):
     recs, warnings = _read(_log(tmp_path, edit))
     assert not [r for r in recs if isinstance(r, Transforms)]
     assert len(warnings) == 1 and "a transform base_link → laser with non-finite or impossible numbers" in warnings[0]
+
+
+@pytest.mark.parametrize("suffix", [".mcap", ".bag"])
+def test_odometry_jump_is_bridged_alike_in_every_format_and_read(tmp_path, suffix):
+    """The same bridging as for CARMEN logs (tests/frontend/test_carmen_bad_numbers.py), here on an MCAP read record
+    by record and in column batches, and on a bag: a 5 km reset of the odometry half way becomes a standstill."""
+    from kosmap.frontend.records import Odometry, OdometrySamples
+    from tests.mapping.synthetic_laser import make_log
+    from tests.mapping.synthetic_laser import records as ring_records
+
+    log = make_log(seed=5, laps=1)
+    recs = ring_records(log)[:1 + 3 * 80]
+    k = 0
+    path = tmp_path / f"jump{suffix}"
+    w = BagWriter(path) if suffix == ".bag" else McapWriter(path)
+    with w:
+        for r in recs:
+            if isinstance(r, Odometry) and r.topic == "/odom":
+                k += 1
+                if k > 40:
+                    r = dataclasses.replace(r, x=r.x + 5000.0)
+            w.write(r)
+    from kosmap.frontend import se2
+
+    def steps(poses):  # each pose in the frame of the one before
+        return np.array([se2.between(a, b) for a, b in zip(poses[:-1], poses[1:])])
+
+    want = steps(log.odom[:80])
+    want[39] = 0.0  # bridged: no motion across the jump, every other increment as the odometry measured it
+    reads = ["read", "read_batched"] if suffix == ".mcap" else ["read"]
+    for how in reads:
+        with open_log(path) as lg:
+            got = []
+            for r in getattr(lg, how)(["/odom"]):
+                got.extend(r.records() if isinstance(r, OdometrySamples) else [r])
+        poses = np.array([[o.x, o.y, o.yaw] for o in got])
+        assert poses.shape == (80, 3)
+        np.testing.assert_allclose(poses[:40], log.odom[:40], atol=1e-6)
+        np.testing.assert_allclose(steps(poses), want, atol=1e-6)
+        assert len(lg.warnings) == 1 and "jumps 5000.1 m" in lg.warnings[0], (how, lg.warnings)

@@ -1,5 +1,7 @@
 """`kosmap localize`: a simulated depth-camera log (no laser) localized in its building's blueprint with no initial
-pose, scored against the log's ground truth without alignment; the one-line refusals."""
+pose, scored against the log's ground truth without alignment; 30 s without any sensor while the robot drives on;
+a real laser log localized in the map `kosmap slam`
+built from it, with worse odometry; the one-line refusals."""
 
 from __future__ import annotations
 
@@ -11,22 +13,24 @@ import pytest
 from kosmap.tools.cli import main
 
 
-def _simulate(world: str, out, duration: float, seed: int, **kw):
+def _simulate(world: str, out, duration: float, seed: int, waypoints=None, **kw):
     from kosmap.mapping.mapio import write_map_server
     from kosmap.tools.simulate import SimConfig, load_world, simulate
+    from kosmap.tools.simulate.world import PathSpec
 
     w = load_world(world)
     # 10 Hz depth at half resolution (same 70.6° view), no laser: the depth camera is all localize may use
     cfg = SimConfig(seed=seed, duration=duration, depth_rate=10.0, depth_width=256, depth_height=212, laser=False,
                     compression="lz4", **kw)
-    simulate(w, cfg, out / f"{world}.mcap")
+    simulate(w, cfg, out / f"{world}.mcap", None if waypoints is None else PathSpec(np.asarray(waypoints, float)))
     write_map_server(w.blueprint(), out / f"{world}_plan.yaml", image_ext=".png")
     return out / f"{world}.mcap", out / f"{world}_plan.yaml"
 
 
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
-    return _simulate("room", tmp_path_factory.mktemp("loc"), 50.0, seed=1)
+    loop = [[3.8, 1.4], [3.8, 3.6], [1.2, 3.6], [1.2, 1.4]]  # the room's loop round the table, three times
+    return _simulate("room", tmp_path_factory.mktemp("loc"), 80.0, seed=1, waypoints=[[1.2, 1.4]] + loop * 3)
 
 
 def _localize(log, plan, out, capsys, *extra) -> dict:
@@ -43,8 +47,8 @@ def test_room_localized_in_its_blueprint_without_an_initial_pose(room, tmp_path,
     loc, tr = m["localization"], m["truth"]["after_convergence"]
     assert m["run"]["source"] == "kos" and m["run"]["wheel_odometry"] and m["run"]["gyro"]
     assert loc["converged_s"] is not None and loc["converged_s"] <= 20.0, loc
-    # measured (seed 1, 50 s): converged at 8.5 s, position RMSE 0.083 m (median 0.035 m), heading 0.66°; the
-    # error is the first metres after the pose is found, where the narrow scan fixes one direction only
+    # measured (seed 1, 80 s, three loops): found at 9.0 s, then position RMSE 0.065 m (median 0.031 m), heading
+    # 0.59°; the error is in the first metres after the pose is found, where the narrow scan fixes one direction only
     assert tr["position_m"]["rmse"] <= 0.10 and tr["position_m"]["median"] <= 0.05, tr
     assert tr["heading_deg"]["rmse"] <= 1.0, tr
     assert not loc["lost"], loc
@@ -54,6 +58,51 @@ def test_room_localized_in_its_blueprint_without_an_initial_pose(room, tmp_path,
     traj = np.loadtxt(out / "trajectory.tum")
     assert traj.shape == (m["run"]["scans"], 8)
     assert "[localize]" in (out / "config.toml").read_text()
+
+
+def _drop(src, dst, t_from: float, t_to: float):
+    """The log with every sensor message (depth, odometry, IMU) between t_from and t_to s dropped, while the robot
+    drives on: only the ground truth keeps going."""
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.writer import McapWriter
+
+    with open_log(src) as log, McapWriter(dst) as w:
+        t0 = None
+        for r in log.read(log.info().types()):
+            t = getattr(r, "stamp_ns", 0)
+            if t:
+                t0 = t if t0 is None else t0
+                if t_from <= (t - t0) * 1e-9 <= t_to and r.topic != "/ground_truth/odom":
+                    continue
+            w.write(r, r.topic)
+    return dst
+
+
+@pytest.mark.slow
+def test_sensor_gap_while_driving_is_detected_and_the_pose_found_again(room, tmp_path, capsys):
+    log, plan = room
+    gap_from, gap_to = 25.0, 55.0  # 30 s without any sensor while the robot drives on round the table
+    m = _localize(_drop(log, tmp_path / "gap.mcap", gap_from, gap_to), plan, tmp_path / "out", capsys)
+    loc = m["localization"]
+    assert loc["converged_s"] is not None and loc["converged_s"] < gap_from, loc
+    lost = [s for s in loc["lost"] if s["start_s"] >= gap_from - 0.5]
+    assert lost and lost[0]["start_s"] <= gap_to + 1.0, loc  # detected as soon as the scans resume
+    assert lost[0]["recovered_s"] is not None and lost[0]["recovered_s"] <= gap_to + 15.0, lost
+    rows = np.genfromtxt(tmp_path / "out" / "confidence.csv", delimiter=",", names=True, dtype=None, encoding=None)
+    tum = np.loadtxt(tmp_path / "out" / "trajectory.tum")
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.records import Odometry
+
+    with open_log(log) as lg:
+        gt = np.array([(r.stamp_ns * 1e-9, r.x, r.y) for r in lg.read(["/ground_truth/odom"]) if isinstance(r, Odometry)])
+    err = np.hypot(tum[:, 1] - np.interp(tum[:, 0], gt[:, 0], gt[:, 1]), tum[:, 2] - np.interp(tum[:, 0], gt[:, 0], gt[:, 2]))
+    t = tum[:, 0] - tum[0, 0]
+    after = t >= lost[0]["recovered_s"]
+    assert after.any() and np.mean(rows["status"][after] == "tracking") >= 0.95, rows["status"][after]
+    # measured: found again 10.4 s after the gap, 0.21 m off (the narrow scan sees the wall that fixes the error
+    # only at the edge of its view), 0.16 m RMSE from then on, falling to 0.015 m at the end of the log
+    assert np.sqrt(np.mean(err[after] ** 2)) <= 0.2, err[after]
+    assert err[-1] <= 0.05, err[after]
 
 
 def _bad(capsys, *args) -> str:
@@ -80,3 +129,60 @@ def test_refusals_are_one_line(room, tmp_path, capsys):
     err = _bad(capsys, log, "--map", plan, "--out", tmp_path / "e", "--source", "laser")
     assert "LaserScan" in err
     assert not (tmp_path / "e").exists() or not any((tmp_path / "e").iterdir())
+
+
+def _perturbed_copy(src, dst, seconds: float, scale: float, drift_deg_per_m: float):
+    """The first `seconds` of a log, its wheel odometry re-integrated with a distance scale error and a heading drift
+    per metre driven (a worse robot than the one that recorded it)."""
+    import dataclasses
+    import math
+
+    from kosmap.frontend import se2
+    from kosmap.frontend.logs import open_log
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import Odometry
+
+    prev = cur = None
+    with open_log(src) as log, McapWriter(dst) as w:
+        t0 = None
+        for r in log.read(log.info().types()):
+            t = getattr(r, "stamp_ns", 0)
+            if t:
+                t0 = t if t0 is None else t0
+                if t - t0 > seconds * 1e9:
+                    break
+            if isinstance(r, Odometry):
+                p = np.array([r.x, r.y, r.yaw])
+                if prev is None:
+                    cur = p.copy()
+                else:
+                    inc = se2.between(prev, p)
+                    d = math.hypot(inc[0], inc[1])
+                    inc[:2] *= scale
+                    inc[2] += math.radians(drift_deg_per_m) * d
+                    cur = se2.compose(cur, inc)
+                prev = p
+                r = dataclasses.replace(r, x=float(cur[0]), y=float(cur[1]), yaw=float(cur[2]))
+            w.write(r, r.topic)
+    return dst
+
+
+@pytest.mark.slow
+@pytest.mark.data
+def test_laser_log_localized_in_its_own_slam_map_with_worse_odometry(tmp_path, capsys):
+    from tests.conftest import require_data
+
+    bag = require_data("laser/intel/intel.orig.bag")
+    seconds = 200.0
+    clean = _perturbed_copy(bag, tmp_path / "intel.mcap", seconds, 1.0, 0.0)
+    worse = _perturbed_copy(bag, tmp_path / "intel_worse.mcap", seconds, 1.03, 2.0)  # 3 % and 2°/m
+    slam = tmp_path / "slam"
+    assert main(["slam", str(clean), "--source", "laser", "--out", str(slam), "--quiet"]) == 0, capsys.readouterr().err
+    m = _localize(worse, slam / "map.yaml", tmp_path / "out", capsys, "--source", "laser",
+                  "--ground-truth", str(slam / "trajectory.tum"))
+    loc, tr = m["localization"], m["truth"]["after_convergence"]
+    assert loc["converged_s"] is not None and loc["converged_s"] <= 60.0, loc  # the robot stands still for 24 s
+    assert not loc["lost"], loc
+    # measured: found after 46 s, then 0.045 m RMSE (median 0.026 m) and 0.36° from the SLAM trajectory
+    assert tr["position_m"]["rmse"] <= 0.05, tr
+    assert tr["heading_deg"]["rmse"] <= 1.0, tr

@@ -203,3 +203,21 @@ def test_ctrl_c_of_a_rerun_keeps_the_complete_build_rather_than_a_partial_one(la
     res = build(laser_log, tmp_path / "first", load_config(None, SETS), workers=0, on_progress=stop_after_10)
     assert res.partial and json.loads((tmp_path / "first" / MANIFEST).read_text())["partial"] is True
     assert res.metrics["frames"]["laser_scans_used"] == 10
+
+
+@needs_proc
+@pytest.mark.slow
+def test_a_slam_rerun_stopped_midway_keeps_its_previous_files(laser_log, tmp_path):
+    """The same staging for the other commands that write a folder (scan, compare, localize: `outdir.writing`):
+    SIGTERM once the re-run has staged files."""
+    out = tmp_path / "out"
+    args = ["slam", str(laser_log), "--out", str(out), "-q"]
+    assert main(args) == 0
+    before = _snapshot(out)
+    assert {"trajectory.tum", "map.pgm", "metrics.json", MANIFEST} <= set(before)
+    p = _start(args)
+    _wait_for(p, lambda: any(any(s.iterdir()) for s in out.glob(STAGE_PREFIX + "*")), "a staged file")
+    p.send_signal(signal.SIGTERM)
+    err = p.communicate(timeout=120)[1]
+    assert p.returncode == 128 + signal.SIGTERM and err.strip() == "kosmap: terminated", err
+    assert _snapshot(out) == before and not _leftovers(out)

@@ -220,10 +220,10 @@ def test_failure_mid_run_leaves_the_previous_results_untouched(capsys, tmp_path,
     broken.mkdir()
     for i, img in enumerate(_depth_mm(2)):
         cv2.imwrite(str(broken / f"{i}.png"), img)
-    cv2.imwrite(str(broken / "2.png"), np.zeros((480, 640, 3), np.uint8))  # the third frame fails
+    (broken / "2.png").write_bytes(b"\x89PNG\r\n\x1a\n" + b"\0" * 64)  # the third frame fails: not decodable
     for dest in (out, tmp_path / "new"):
         code, _, err = run(capsys, "planes", broken, "--out", dest, "--figures", "3", "--save-depth")
-        one_line_error(code, err, "2.png", "not a single-channel 16-bit depth image")
+        one_line_error(code, err, "2.png", "cannot read depth image")
     after = {p.relative_to(out): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
     assert after == before and not [p for p in out.iterdir() if p.name.startswith(".")]
     assert not (tmp_path / "new").exists()
@@ -243,7 +243,8 @@ def test_out_that_is_a_file_is_one_line(capsys, tmp_path, slambook):
 
 def test_printed_shares_cover_every_pixel(capsys, tmp_path, slambook):
     out = tmp_path / "o"
-    code, stdout, err = run(capsys, "planes", slambook[0], "--out", out, *QUICK)
+    # without growing, so that some pixels stay unexamined (grown, the box room leaves none)
+    code, stdout, err = run(capsys, "planes", slambook[0], "--out", out, *QUICK, "--set", "fspf.grow=false")
     assert code == 0, err
     line = stdout.splitlines()[-2] if stdout.splitlines()[-1].startswith("wrote") else stdout
     assert "of the pixels:" in line and "not examined" in line, line
@@ -288,3 +289,94 @@ def test_a_shorter_rerun_leaves_no_frames_of_the_longer_one(capsys, tmp_path, pl
     assert sorted(p.name for p in (out / "planes").iterdir()) == ["000000.npz", "mine.txt"]
     assert [p.name for p in (out / "depth").iterdir()] == ["000000.png"]
     assert json.loads((out / "summary.json").read_text())["frames"] == 1
+
+
+# ---- inputs as users have them: either depth-scale convention, non-depth images, empty frames, --glob, --seed ---------
+
+def test_depth_scale_below_one_is_metres_per_unit(capsys, tmp_path, plain_folder):
+    """RealSense's convention (0.0002 m per unit) and TUM's (5000 units per metre) give the same points."""
+    folder, imgs = plain_folder
+    runs = {}
+    for scale in ("5000", "0.0002"):
+        code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / scale, "--depth-scale", scale, *QUICK)
+        assert code == 0, err
+        runs[scale] = _z_at_pixels(tmp_path / scale)
+    (z1, p1), (z2, p2) = runs.values()
+    assert len(z1) > 1000 and np.array_equal(p1, p2) and np.allclose(z1, z2)
+    assert np.allclose(z1, imgs[0][p1[:, 0], p1[:, 1]] / 5000.0, atol=1e-4)
+
+
+@pytest.mark.parametrize("key,value", [("depth_scale", 0.0002), ("depth_scale", 5000), ("depth_units", 0.0002),
+                                       ("units_per_meter", 5000)])
+def test_camera_file_scale_in_either_convention(capsys, tmp_path, plain_folder, key, value):
+    folder, imgs = plain_folder
+    fx, fy, cx, cy = SLAMBOOK_K
+    cam = tmp_path / "camera.json"
+    cam.write_text(json.dumps({"fx": fx, "fy": fy, "cx": cx, "cy": cy, key: value}))
+    code, _, err = run(capsys, "planes", folder, "--out", tmp_path / "o", "--camera", cam, *QUICK)
+    assert code == 0, err
+    z, px = _z_at_pixels(tmp_path / "o")
+    assert len(z) > 1000 and np.allclose(z, imgs[0][px[:, 0], px[:, 1]] / 5000.0, atol=1e-4)
+
+
+def test_wrong_scale_warns_with_the_likely_cause(capsys, tmp_path, plain_folder):
+    """Millimetres read as metres (scale 1): no pixel is eligible, and the warning says why."""
+    folder, _ = plain_folder
+    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "o", "--depth-scale", "1", *QUICK)
+    assert code == 0, err
+    assert "no eligible pixel" in stdout and "beyond [depth] max_depth" in stdout and "depth scale" in stdout
+    assert "2 of 2 frames had no eligible pixel" in stdout
+
+
+def test_labels_masks_and_8bit_images_are_skipped_and_counted(capsys, tmp_path, plain_folder):
+    folder, imgs = plain_folder
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for i, img in enumerate(imgs):
+        cv2.imwrite(str(mixed / f"{i}.png"), img)
+        cv2.imwrite(str(mixed / f"{i}_labels.png"), (img // 300).astype(np.uint16))  # 16-bit, but labels
+        cv2.imwrite(str(mixed / f"{i}_mask.png"), (img > 0).astype(np.uint8) * 255)
+    cv2.imwrite(str(mixed / "9.png"), np.zeros((480, 640, 3), np.uint8))  # colour, not named as such
+    code, stdout, err = run(capsys, "planes", mixed, "--out", tmp_path / "o", "--depth-scale", "5000", *QUICK)
+    assert code == 0, err
+    assert "2 frames" in stdout
+    assert "skipped 4 images named as colour, labels or masks" in stdout
+    assert "1 images of" in stdout and "not depth (8-bit or colour)" in stdout
+    sel = tmp_path / "o2"
+    code, stdout, err = run(capsys, "planes", mixed, "--out", sel, "--depth-scale", "5000", "--glob", "?.png", *QUICK)
+    assert code == 0 and "2 frames" in stdout and "1 images of" in stdout, stdout + err
+    code, _, err = run(capsys, "planes", mixed, "--out", tmp_path / "o3", "--glob", "*.jpg")
+    one_line_error(code, err, "no file matching --glob *.jpg")
+
+
+def test_seed_is_per_frame_whatever_every(capsys, tmp_path, plain_folder):
+    """--seed S: frame i uses S + i with i counted before --every, so the folder's third image gives the same
+    planes as output frame 2 of a full run and as output frame 1 of an --every 2 run."""
+    folder, imgs = plain_folder
+    four = tmp_path / "four"
+    four.mkdir()
+    for i in range(4):
+        cv2.imwrite(str(four / f"{i}.png"), imgs[0])  # one image four times: only the seed differs
+    code, _, err = run(capsys, "planes", four, "--out", tmp_path / "all", "--seed", "7", "--depth-scale", "5000", *QUICK)
+    assert code == 0, err
+    code, _, err = run(capsys, "planes", four, "--out", tmp_path / "every", "--seed", "7", "--every", "2", "--depth-scale", "5000",
+               *QUICK)
+    assert code == 0, err
+    z2, p2 = _z_at_pixels(tmp_path / "all", "000002")
+    z_ev, p_ev = _z_at_pixels(tmp_path / "every", "000001")
+    assert np.array_equal(p2, p_ev) and np.array_equal(z2, z_ev)
+    z1, p1 = _z_at_pixels(tmp_path / "all", "000001")
+    assert not (len(p1) == len(p2) and np.array_equal(p1, p2))  # another seed, other draws
+
+
+def test_elapsed_ms_is_the_filters_own_time(capsys, tmp_path, plain_folder):
+    """stats.csv elapsed_ms: the first frame pays no compiling or buffer set-up (within 3× of the others' median)."""
+    folder, imgs = plain_folder
+    many = tmp_path / "many"
+    many.mkdir()
+    for i in range(6):
+        cv2.imwrite(str(many / f"{i}.png"), imgs[i % 2])
+    code, _, err = run(capsys, "planes", many, "--out", tmp_path / "o", "--depth-scale", "5000", *QUICK)
+    assert code == 0, err
+    ms = [float(r["elapsed_ms"]) for r in csv.DictReader(open(tmp_path / "o" / "stats.csv"))][:-1]
+    assert len(ms) == 6 and ms[0] <= 3 * np.median(ms[1:]), ms

@@ -1,13 +1,14 @@
 """FSPF+ and FSPF on the real depth frames of ../shared/data/depth: every dataset decodes and runs; the
-labelled mOSD table plane is found as one plane."""
+labelled mOSD table plane is found as one plane, whole, at any seed."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from kosmap.frontend.camera import DepthConfig, depth_constraints
+from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints
 from kosmap.frontend.fspf import FspfConfig, filter_planes, fspf_plus
+from kosmap.frontend.planes import fit_plane
 from kosmap.tools.datasets import DATASETS, iter_dataset, iter_samples
 
 pytestmark = pytest.mark.data
@@ -53,15 +54,22 @@ def test_mosd_table_is_one_plane(data_dir):
         table = (s.labels >= 1) & (s.labels <= 9)
         assert table.sum() > 100000
         assert depth_constraints(s.depth, 0.5, 4.5)[table].mean() > 0.99
-        cfg = FspfConfig(drop_classes=[], analysed_fraction=0.99)
-        p = fspf_plus(s.depth, s.camera, cfg, seed=0)
-        lab = p.label_image()
-        overlap = np.bincount(lab[table], minlength=len(p) + 1)[1:]
-        k = int(overlap.argmax())
-        recall, precision = overlap[k] / table.sum(), overlap[k] / p.counts[k]
-        assert recall >= 0.95 and precision >= 0.98, (s.name, recall, precision)
+        r, c = np.nonzero(table)
+        n_true = fit_plane(backproject(s.depth, s.camera, r, c))[0]
+        cfg = FspfConfig(drop_classes=[])  # the defaults: 90 % analysed, the rest grown onto the planes found
+        recalls = []
+        for seed in range(5):
+            p = fspf_plus(s.depth, s.camera, cfg, seed=seed)
+            lab = p.label_image()
+            overlap = np.bincount(lab[table], minlength=len(p) + 1)[1:]
+            k = int(overlap.argmax())
+            recall, precision = overlap[k] / table.sum(), overlap[k] / p.counts[k]
+            recalls.append(recall)
+            assert recall >= 0.90 and precision >= 0.98, (s.name, seed, recall, precision)
+            assert np.degrees(np.arccos(min(1.0, abs(p.normals[k] @ n_true)))) <= 0.5, (s.name, seed)
+        assert np.mean(recalls) >= 0.95 and max(recalls) - min(recalls) <= 0.05, (s.name, recalls)
         # the boxes standing on the table are kept too (their faces are planes: most of their pixels)
         for obj in np.unique(s.labels[s.labels >= 20]):
             assert (lab[s.labels == obj] > 0).mean() >= 0.6, (s.name, obj)
-        again = fspf_plus(s.depth, s.camera, cfg, seed=0)
+        again = fspf_plus(s.depth, s.camera, cfg, seed=4)  # the same seed, the same planes
         assert np.array_equal(again.pixels, p.pixels) and np.array_equal(again.normals, p.normals)

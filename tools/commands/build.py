@@ -53,7 +53,9 @@ def register(app: typer.Typer) -> None:
     ) -> None:
         """FSPF+ → KOS → SLAM → maps for the depth camera(s) and, when the log has one, the laser; the maps compared
         with each other and the blueprint; a report (report.html) with maps, overlays, trajectories and timings.
-        Ctrl-C stops reading and writes what is done, marked partial (exit code 130); a second Ctrl-C aborts."""
+        Ctrl-C stops reading and writes what is done, marked partial (exit code 130), unless --out holds a complete
+        earlier build, which is then kept; a second Ctrl-C aborts. A run that fails or is stopped leaves --out as it
+        was: its files replace the previous build's only when it completes."""
         from kosmap.mapping.build import build as run
         from kosmap.tools.progress import build_bar
 

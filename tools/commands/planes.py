@@ -63,7 +63,7 @@ class Override:
 
 def _override(camera_file: Path | None, depth_scale: float | None) -> Override:
     """Read --camera and check --depth-scale up front: a missing file or a scale ≤ 0 stops the run in one line."""
-    check_depth_scale(depth_scale)
+    depth_scale = check_depth_scale(depth_scale)  # as image units per metre, whichever convention was given
     if camera_file is None:
         return Override(None, None, depth_scale, f"--depth-scale {depth_scale:g}" if depth_scale is not None else "")
     intrinsics, file_scale = read_camera_file(camera_file, default_scale=None)
@@ -89,15 +89,17 @@ def _log_meters(rec: DepthFrame, ov: Override, warnings: list[str]) -> np.ndarra
     return np.divide(rec.image, np.float32(ov.depth_scale), dtype=np.float32)
 
 
-def _log_frames(path: Path, cfg, ov: Override, every: int,
-                limit: int | None) -> tuple[int, Generator[Item, None, None], list[str]]:
+def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
+                pattern: str | None = None) -> tuple[int, Generator[Item, None, None], list[str]]:
     """Frames of a log (MCAP, bag) or of a folder of depth images; --camera and --depth-scale replace its own."""
     from kosmap.frontend.logs import detect_topics, open_log
     from kosmap.frontend.logs.images import ImageFolder
 
     if path.is_dir():  # the folder reader applies the camera file and the scale itself
-        log = ImageFolder(path, ov.camera_file, ov.depth_scale)
+        log = ImageFolder(path, ov.camera_file, ov.depth_scale, pattern=pattern)
         ov = Override()
+    elif pattern:
+        raise KosmapError(f"--glob {pattern} applies to a folder of depth images; {path} is a log")
     else:
         log = open_log(path, cfg.topics.on_damage)
     info = log.info()
@@ -143,6 +145,9 @@ def _log_frames(path: Path, cfg, ov: Override, every: int,
                     yield Item(k, rec.stamp_ns, depth, cam, mounts[rec.frame_id], rec.topic, rec.frame_id or "camera")
                     done += 1
         finally:
+            skipped = getattr(log, "not_depth", None)
+            if skipped:
+                _note(warnings, f"{len(skipped)} images of {path} were not depth (8-bit or colour) and were skipped")
             log.close()
 
     return total, gen(), warnings
@@ -169,9 +174,9 @@ def _dataset_frames(folders: list[Path], cfg, ov: Override, every: int,
     warnings: list[str] = []
 
     def gen() -> Iterator[Item]:
-        k = 0
         for f in folders:
-            for s in iter_dataset(f, limit, every):
+            for j, s in enumerate(iter_dataset(f, limit, every)):
+                k = j * every  # the frame's index in its dataset, as a log's frames are numbered before --every
                 depth = _dataset_depth(s, ov, warnings)
                 own = ov.camera(depth.shape, "camera")
                 if own is not None and not np.allclose(own.K, s.camera.K):
@@ -179,7 +184,6 @@ def _dataset_frames(folders: list[Path], cfg, ov: Override, every: int,
                 cam = camera_for(depth.shape, own or s.camera, cfg.depth)
                 yield Item(k, int(round(s.stamp * 1e9)), depth, cam, config_mount(cfg.depth, "camera"),
                            f"{s.dataset}/{s.name}", "camera")
-                k += 1
 
     return total, gen(), warnings
 
@@ -235,6 +239,20 @@ def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) 
         centroids /= np.maximum(planes.counts, 1)[:, None]
     msg = convert.pose_array_msg(writer.ts, t, item.frame_id, centroids, normal_quaternions(planes.normals))
     writer.write_msg(NORMALS_TOPIC, "geometry_msgs/msg/PoseArray", msg, t)
+
+
+def no_eligible_cause(depth_m: np.ndarray, min_depth: float, max_depth: float) -> str:
+    """Why a frame has no pixel within [min_depth, max_depth]: the likely cause, in one sentence."""
+    d = np.asarray(depth_m, np.float64)
+    valid = d[np.isfinite(d) & (d > 0)]
+    if not valid.size:
+        return "it holds no depth at all (every pixel 0 or NaN)"
+    med = float(np.median(valid))
+    if med > max_depth:
+        return (f"its median depth reads {med:.3g} m, beyond [depth] max_depth {max_depth:g} m: the depth scale is "
+                f"likely too small (--depth-scale is image units per metre, or below 1 metres per unit)")
+    return (f"its median depth reads {med:.3g} m, nearer than [depth] min_depth {min_depth:g} m: the depth scale is "
+            f"likely too large (an image already in metres read as millimetres?), or lower depth.min_depth")
 
 
 def _shares(planes: Planes) -> dict:
@@ -319,7 +337,8 @@ def _discard(stage: Path, out: Path, made: Path | None) -> None:
 
 def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, depth_scale: float | None = None,
                save_depth: bool = False, figures: int = 3, every: int = 1, limit: int | None = None,
-               mcap: bool = True, npz: bool = True, mcap_points: int = 30000, progress: bool = True) -> dict:
+               mcap: bool = True, npz: bool = True, mcap_points: int = 30000, progress: bool = True,
+               pattern: str | None = None) -> dict:
     """Filter every frame of `path` into `out`; returns the summary (also written as summary.json).
 
     Options, the camera file, `out` and the first frame are checked before anything is written; the outputs go
@@ -329,11 +348,11 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
     _check_args(path, every, limit, figures)
     ov = _override(camera_file, depth_scale)
     check_out(out)
-    folders = detect(path) if path.is_dir() else []
+    folders = detect(path) if path.is_dir() and not pattern else []
     if folders:
         total, frames, warnings = _dataset_frames(folders, cfg, ov, every, limit)
     else:
-        total, frames, warnings = _log_frames(path, cfg, ov, every, limit)
+        total, frames, warnings = _log_frames(path, cfg, ov, every, limit, pattern)
     stage, made = None, None
     try:
         checked = _first_frame(path, frames)
@@ -363,6 +382,7 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
 
         writer = McapWriter(out / "planes.mcap")
     rows: list[dict] = []
+    empty = 0  # frames without an eligible pixel
     mounts_written: set[str] = set()
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -372,9 +392,16 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
         with bar:
             task = bar.add_task("planes", total=total, ms="")
             for n, item in enumerate(frames):
+                if n == 0:
+                    warmup(cfg.fspf.method, item.depth.shape)  # elapsed_ms: no compiling, no first touch of buffers
                 planes = filter_planes(item.depth, item.camera, cfg.fspf, cfg.depth, item.mount,
                                        seed=frame_seed(cfg.fspf, item.index))
                 name = f"{n:06d}"
+                if planes.stats.eligible == 0:
+                    empty += 1
+                    if empty == 1:
+                        _note(warnings, f"frame {name} ({item.source}) has no eligible pixel: "
+                                        + no_eligible_cause(item.depth, cfg.depth.min_depth, cfg.depth.max_depth))
                 row = {"frame": name, "source": item.source, "stamp": f"{item.stamp_ns * 1e-9:.6f}", **_shares(planes)}
                 rows.append(row)
                 if npz:
@@ -405,6 +432,8 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
         raise
     if writer is not None:
         writer.close()
+    if empty > 1:
+        _note(warnings, f"{empty} of {len(rows)} frames had no eligible pixel")
     summary_row = _summary_row(rows)
     with open(out / "stats.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=STATS_COLUMNS)
@@ -428,11 +457,12 @@ def register(app: typer.Typer) -> None:
         method: Annotated[Optional[str], typer.Option("--method", help="fspf+ (thesis, default) or fspf (Biswas).")] = None,
         save_depth: Annotated[bool, typer.Option("--save-depth", help="Write the processed depth (plane points only) as 16-bit PNG (mm).")] = False,
         camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy[, depth_scale]); replaces the intrinsics of the folder, dataset or log.")] = None,
-        depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Image units per metre of 16-bit depth (1000 = mm, 5000 = TUM); overrides the camera file and the dataset's own.")] = None,
+        depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Scale of 16-bit depth, either convention: 1 or more is image units per metre (1000 = mm, 5000 = TUM), below 1 metres per unit (0.001 = mm, RealSense); overrides the camera file and the dataset's own.")] = None,
+        glob: Annotated[Optional[str], typer.Option("--glob", help="The depth images of a folder, by pattern (e.g. '*_depth.png'); without it images named rgb, color, label, mask or seg and 8-bit or colour images are skipped and counted.")] = None,
         figures: Annotated[int, typer.Option("--figures", help="How many frames get a Fig. 5.2-style figure (spread over the run).")] = 3,
         every: Annotated[int, typer.Option("--every", help="Process every Nth depth frame.")] = 1,
         max_frames: Annotated[Optional[int], typer.Option("--max-frames", help="Stop after this many frames.")] = None,
-        seed: Annotated[Optional[int], typer.Option("--seed", help="Random seed (frame i uses seed + i).")] = None,
+        seed: Annotated[Optional[int], typer.Option("--seed", help="Random seed: frame i (its index in the log or folder, counted before --every and --max-frames) uses seed + i, so a frame's planes are the same whatever --every; the same seed, the same planes.")] = None,
         no_mcap: Annotated[bool, typer.Option("--no-mcap", help="Do not write planes.mcap.")] = False,
         no_npz: Annotated[bool, typer.Option("--no-npz", help="Do not write planes/NNNNNN.npz.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
@@ -448,7 +478,7 @@ def register(app: typer.Typer) -> None:
             sets.append(f"fspf.seed={seed}")
         cfg = O.make_config(config, sets, depth_topic, info_topic)
         s = run_planes(source, out, cfg, camera_file=camera, depth_scale=depth_scale, save_depth=save_depth,
-                       figures=figures, every=every, limit=max_frames, mcap=not no_mcap, npz=not no_npz)
+                       figures=figures, every=every, limit=max_frames, mcap=not no_mcap, npz=not no_npz, pattern=glob)
         print(f"{s['frames']} frames, {s['method']} ({s['backend']}): median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
               f"per frame; of the pixels: ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
               f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, "

@@ -17,10 +17,13 @@ from kosmap.tools.progress import seconds_bar
 def _sim_config(config: Path | None, sets: list[str] | None, **flags):
     """[simulate] of a TOML file ← --set key=value ← the dedicated flags (the most specific wins)."""
     from kosmap.mapping.config import parse_value
+    from kosmap.mapping.limits import check_value
     from kosmap.tools.simulate.config import SimConfig
 
     values: dict = {}
     if config is not None:
+        if config.is_dir():
+            raise ConfigError(f"config file {config} is a folder; give a TOML file with [simulate] or drop --config")
         if not config.is_file():
             raise ConfigError(f"config file {config} does not exist; drop --config or give a TOML file with [simulate]")
         try:
@@ -39,6 +42,10 @@ def _sim_config(config: Path | None, sets: list[str] | None, **flags):
     for k in values:
         if k not in known:
             raise ConfigError(f"unknown simulator setting '{k}'; known: {', '.join(sorted(known))}")
+    fields = {f.name: f for f in dataclasses.fields(SimConfig)}
+    for k, v in values.items():  # finite, and within what sensors and robots allow (mapping/limits.py)
+        d = fields[k].default
+        check_value("simulate", k, fields[k].metadata.get("unit", ""), v, count=isinstance(d, int) and not isinstance(d, bool))
     try:
         return SimConfig(**values)
     except TypeError as e:

@@ -1,0 +1,78 @@
+"""Gravity from the frames (frontend/gravity.py): a handheld camera pitched 16–36° down and rolled ±5°, no mount,
+no IMU, in the analytic box room (tools/boxroom.py): the floor planes come out 'ground', the 'ground' planes are
+truly horizontal, and the tracked up and height match the truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from kosmap.frontend.camera import mount_transform
+from kosmap.frontend.fspf import FspfConfig, fspf_plus
+from kosmap.frontend.gravity import GravityTracker, dominant_up, reclassify
+from kosmap.frontend.planes import PLANE_CLASSES
+from kosmap.tools.boxroom import BoxRoom, kinect_v2, render_depth
+
+pytestmark = pytest.mark.slow
+FLOOR = 1  # BoxRoom's floor surface id
+ALL = FspfConfig(drop_classes=[])
+
+
+def handheld(n: int, seed: int):
+    """n frames of a camera carried through the room: pitch 16–36° down, roll ±5°, height 0.9–1.5 m."""
+    rng = np.random.default_rng(seed)
+    room, cam = BoxRoom(), kinect_v2()
+    for i in range(n):
+        pitch, roll, h = 16 + 20 * (0.5 + 0.5 * np.sin(i / 4.0 + seed)), 5 * np.sin(i / 3.0), rng.uniform(0.9, 1.5)
+        mount = mount_transform([0.1, 0.0, h], np.radians([roll, pitch, 0.0]))
+        pose = (0.6 + 0.1 * i, 0.4 - 0.05 * i, 0.2 * np.sin(i / 6 + seed))
+        depth, sid = render_depth(room, pose, mount, cam, np.random.default_rng(100 * seed + i))
+        yield depth, sid, cam, mount.matrix()[:3, :3].T @ np.array([0.0, 0.0, 1.0]), h
+
+
+def _score(frames, use_tracker: bool):
+    tracker = GravityTracker()
+    floor = floor_ground = ground = ground_level = 0
+    errs, herrs = [], []
+    for depth, sid, cam, true_up, h in frames:
+        p = fspf_plus(depth, cam, ALL, seed=len(errs))  # no mount: a level camera at 1 m by default
+        if use_tracker:
+            up = tracker.update(p)
+            p = reclassify(p, up, tracker.height, ALL)
+            errs.append(np.degrees(np.arccos(min(1.0, float(up @ true_up)))))
+            herrs.append(abs(tracker.height - h))
+        for k in range(len(p)):
+            if p.counts[k] < 1000:  # sizeable planes (small strips cut across corners fit anything)
+                continue
+            ids = sid[p.pixels[p.plane == k, 0], p.pixels[p.plane == k, 1]]
+            cls = PLANE_CLASSES[p.classes[k]]
+            if np.bincount(ids).argmax() == FLOOR:
+                floor += 1
+                floor_ground += cls == "ground"
+            if cls == "ground":
+                ground += 1
+                ground_level += np.degrees(np.arccos(min(1.0, abs(float(p.normals[k] @ true_up))))) < 3.0
+    return floor, floor_ground, ground, ground_level, errs, herrs
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_handheld_floor_is_ground_with_gravity_from_the_frames(seed):
+    floor, floor_ground, ground, ground_level, errs, herrs = _score(handheld(9, seed), True)
+    assert floor >= 6 and floor_ground / floor >= 0.90, (floor_ground, floor)
+    assert ground >= 6 and ground_level / ground >= 0.98, (ground_level, ground)
+    assert np.median(errs) < 0.5 and max(errs) < 2.0, errs
+    assert np.median(herrs) < 0.02, herrs
+
+
+def test_handheld_floor_is_not_ground_with_a_level_default():
+    """The same frames classified with the level default mount: the floors are 'slanted' (why gravity matters)."""
+    floor, floor_ground, *_ = _score(handheld(4, 0), False)
+    assert floor >= 3 and floor_ground / floor < 0.2
+
+
+def test_dominant_up_ignores_walls_and_flips_ceilings():
+    up = np.array([0.0, -0.8, 0.6])  # pitched ~37° down
+    wall = np.cross(up, [1.0, 0.0, 0.0])
+    normals = np.array([up, -up, wall / np.linalg.norm(wall), [1.0, 0.0, 0.0]])
+    est, pts = dominant_up(normals, np.array([5000, 3000, 50000, 40000]), np.array([0.0, -1.0, 0.0]))
+    assert pts == 8000 and np.allclose(est, up / np.linalg.norm(up))
