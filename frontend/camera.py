@@ -22,6 +22,10 @@ class DepthConfig(StageConfig):
     fov_v_deg: float = param(60.0, lo=1.0, hi=179.0, doc="vertical field of view when no CameraInfo", unit="deg")
     mount_xyz: list = param([0.0, 0.0, 1.0], doc="camera_link in base_link when /tf_static has no mount", unit="m")
     mount_rpy_deg: list = param([0.0, 0.0, 0.0], doc="camera_link roll, pitch, yaw in base_link (pitch > 0 looks down)", unit="deg")
+    gravity: str = param("auto", choices=("auto", "mount", "frames"), doc="where plane classes take gravity from: "
+                         "auto = /tf_static's mount, else a gravity file beside the images, else mount_* when set, else "
+                         "the frames (the dominant level plane family, tracked: frontend/gravity.py); mount = the "
+                         "mount always (a level camera at 1 m by default); frames = the frames always")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -110,6 +114,12 @@ def rays(cam: CameraModel) -> np.ndarray:
 # optical y = −link z, optical z = link x. As roll/pitch/yaw this is (−π/2, 0, −π/2), the usual static publisher.
 OPTICAL_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 BASE_FRAMES = ("base_link", "base_footprint")
+
+
+def mount_is_default(cfg: DepthConfig) -> bool:
+    """Whether [depth] mount_xyz / mount_rpy_deg are the defaults (nobody said where the camera is)."""
+    d = DepthConfig()
+    return list(cfg.mount_xyz) == list(d.mount_xyz) and list(cfg.mount_rpy_deg) == list(d.mount_rpy_deg)
 
 
 def mount_transform(xyz, rpy, parent: str = "base_link", child: str = "camera_optical_frame") -> Transform:

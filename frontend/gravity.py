@@ -94,6 +94,11 @@ def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
     up, fwd, left = axes_from_up(up)
     planes.classes = classify(planes.normals, up, fwd, left, cfg.slanted_min_deg, cfg.slanted_max_deg, planes.offsets,
                               height, cfg.ground_max_height)
+    return drop_classes(planes, cfg)
+
+
+def drop_classes(planes: Planes, cfg) -> Planes:
+    """The planes without those of cfg.drop_classes (their points counted as dropped)."""
     drop = np.isin(planes.classes, [PLANE_CLASSES.index(c) for c in cfg.drop_classes])
     if not drop.any():
         return planes
