@@ -87,12 +87,14 @@ class LogRecord:
 def find_logs(items: list[Path], list_file: Path | None = None, exclude: Path | None = None) -> list[Path]:
     """The logs named by `items` (log files, or folders searched recursively for .mcap/.bag/.clf) and by
     `list_file` (one path a line, relative to the list's folder; # starts a comment), in that order, each once;
-    files under `exclude` (the output folder) are left out."""
+    files under `exclude` (the output folder), and in a folder searched, the outputs of kosmap runs (a folder with
+    a kosmap manifest: a build's kosmap.mcap) are left out."""
     found: list[Path] = []
     for it in items:
         p = Path(it)
         if p.is_dir():
-            found += sorted(q for q in p.rglob("*") if q.suffix in LOG_SUFFIXES and q.is_file())
+            found += sorted(q for q in p.rglob("*") if q.suffix in LOG_SUFFIXES and q.is_file()
+                            and not (q.parent / MANIFEST).exists())
         elif p.exists():
             found.append(p)
         else:

@@ -73,6 +73,9 @@ def test_log_names_come_from_the_files_and_collisions_are_told_apart(tmp_path):
         (tmp_path / sub / "run.mcap").write_bytes(b"x")
     (tmp_path / "robot1" / "other.bag").write_bytes(b"x")
     (tmp_path / "robot1" / "notes.txt").write_text("not a log")
+    (tmp_path / "robot1" / "built").mkdir()  # a build's folder: its kosmap.mcap is an output, not a log
+    (tmp_path / "robot1" / "built" / "kosmap.mcap").write_bytes(b"x")
+    (tmp_path / "robot1" / "built" / MANIFEST).write_text("{}")
     logs = find_logs([tmp_path])
     assert [p.relative_to(tmp_path).as_posix() for p in logs] == ["robot1/other.bag", "robot1/run.mcap",
                                                                   "robot2/run.mcap"]
