@@ -79,3 +79,41 @@ def test_handheld_folder_takes_gravity_from_the_frames(capsys, tmp_path):
     code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "file", "--figures", "0", "--no-mcap")
     s3 = json.loads((tmp_path / "file" / "summary.json").read_text())
     assert code == 0 and set(s3["gravity"]) == {"file"} and s3["dropped_pct"] < 0.5 * s["dropped_pct"]
+
+
+def test_a_log_with_an_imu_on_the_camera_takes_gravity_from_it(capsys, tmp_path):
+    """A handheld camera with an IMU on its body (tied to the depth frame in /tf_static, no mount to base_link):
+    the IMU's specific force gives gravity; without the tie it is not used (the frames are)."""
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import CameraModel, DepthFrame, Imu, Transform, Transforms
+    from scipy.spatial.transform import Rotation
+
+    cam, room = kinect_v2(), BoxRoom()
+    t0 = 1_700_000_000_000_000_000
+    imu_in_cam = Rotation.from_euler("xyz", [90, 0, 90], degrees=True)  # the IMU's axes: turned against the optical
+    for tied in (True, False):
+        path = tmp_path / f"hand{tied}.mcap"
+        with McapWriter(path) as w:
+            if tied:
+                tf = Transform("cam_optical", "cam_imu", np.array([0.02, 0.0, 0.0]), imu_in_cam.as_quat(), t0)
+                w.write(Transforms(t0, (tf,), True, "/tf_static"))
+            w.write(CameraModel(cam.width, cam.height, cam.K, np.zeros(5), "plumb_bob", "cam_optical",
+                                "/cam/depth/camera_info", t0))
+            for i in range(4):
+                pitch, roll, h = 26 + 8 * np.sin(i), 4 * np.cos(i), 1.2 + 0.1 * i
+                mount = mount_transform([0.1, 0.0, h], np.radians([roll, pitch, 0.0]))
+                d, _ = render_depth(room, (0.8 + 0.3 * i, 0.2, 0.1 * i), mount, cam, np.random.default_rng(i))
+                up_cam = mount.matrix()[:3, :3].T @ np.array([0.0, 0.0, 1.0])
+                t = t0 + (i + 1) * 100_000_000
+                for j in range(5):  # 50 Hz: specific force = +g up, in the IMU's axes, a little noise
+                    acc = imu_in_cam.inv().apply(9.81 * up_cam) + np.random.default_rng(j).normal(0, 0.05, 3)
+                    w.write(Imu(t - (5 - j) * 20_000_000, np.zeros(3), acc, frame_id="cam_imu", topic="/imu"))
+                w.write(DepthFrame(t, np.round(d * 1000).astype(np.uint16), "16UC1", "cam_optical", "/cam/depth/image"))
+        code, stdout, err = run(capsys, "planes", path, "--out", tmp_path / f"o{tied}", "--figures", "0", "--no-mcap")
+        assert code == 0, err
+        s = json.loads((tmp_path / f"o{tied}" / "summary.json").read_text())
+        if tied:
+            assert set(s["gravity"]) == {"imu"} and "gravity: the log's IMU" in stdout
+            assert s["dropped_pct"] > 10.0  # the floor, as ground
+        else:
+            assert set(s["gravity"]) == {"frames"} and "is not tied to the depth frame" in stdout

@@ -18,15 +18,15 @@ from typing import Annotated, Optional
 import numpy as np
 import typer
 
-from kosmap.frontend.camera import camera_for, camera_mount, config_mount, gravity_up, mount_is_default
-from kosmap.frontend.gravity import GravityTracker, drop_classes, floor_height, read_gravity_file, reclassify
+from kosmap.frontend.camera import camera_for, camera_mount, config_mount, gravity_up, lookup_static, mount_is_default
+from kosmap.frontend.gravity import GravityTracker, drop_classes, floor_height, imu_up, read_gravity_file, reclassify
 from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.errors import KosmapError, LogError
 from kosmap.frontend.fspf import filter_planes, frame_seed, warmup
 from kosmap.frontend.logs.images import camera_model, check_depth_scale, read_camera_file
 from kosmap.frontend.planes import Planes
 from kosmap.mapping.outdir import check_out
-from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from kosmap.frontend.records import CameraModel, DepthFrame, Imu, Transform, Transforms
 from kosmap.tools import options as O
 
 CLOUD_TOPIC = "/kosmap/planes/points"
@@ -118,6 +118,8 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
     if limit is not None:
         total = min(total, limit)
     wanted = list(det.depth) + [i for i in det.info.values() if i] + ([det.tf_static] if det.tf_static else [])
+    if det.imu and not path.is_dir():
+        wanted.append(det.imu)
     warnings = log.warnings  # the reader adds to it while reading (e.g. a truncated log)
     if ov.camera_file is not None and any(det.info.values()):
         _note(warnings, f"--camera {ov.camera_file} replaces the camera info of "
@@ -128,9 +130,15 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
         statics: list[Transforms] = []
         mounts: dict[str, Transform] = {}
         seen: dict[str, int] = {}
+        imu: list[Imu] = []  # the last half second of IMU samples
         done = 0
         try:
             for rec in log.read(wanted):
+                if isinstance(rec, Imu):
+                    imu.append(rec)
+                    while imu and imu[0].stamp_ns < rec.stamp_ns - 500_000_000:
+                        imu.pop(0)
+                    continue
                 if isinstance(rec, Transforms):
                     statics.append(rec)
                     mounts.clear()
@@ -149,9 +157,10 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
                     if rec.frame_id not in mounts:
                         mounts[rec.frame_id] = camera_mount(statics, rec.frame_id, cfg.depth)
                     mount, src = mounts[rec.frame_id]
-                    grav = gravity_source(cfg.depth, src, gravity_file is not None)
-                    yield Item(k, rec.stamp_ns, depth, cam, mount, rec.topic, rec.frame_id or "camera", grav,
-                               gravity_file[0] if grav == "file" else None)
+                    up_imu = _imu_gravity(imu, statics, rec.frame_id, warnings)
+                    grav = gravity_source(cfg.depth, src, gravity_file is not None, up_imu is not None)
+                    up = {"file": gravity_file[0] if gravity_file else None, "imu": up_imu}.get(grav)
+                    yield Item(k, rec.stamp_ns, depth, cam, mount, rec.topic, rec.frame_id or "camera", grav, up)
                     done += 1
         finally:
             skipped = getattr(log, "not_depth", None)
@@ -251,19 +260,37 @@ def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) 
 
 
 GRAVITY_WORDS = {"tf_static": "the mount in /tf_static", "config": "the [depth] mount_xyz / mount_rpy_deg",
-                 "file": "the folder's gravity file",
+                 "file": "the folder's gravity file", "imu": "the log's IMU (on the depth camera's rigid body)",
                  "frames": "the frames (the dominant level plane family, tracked over the sequence)"}
 
 
-def gravity_source(dcfg, mount_source: str, has_file: bool) -> str:
-    """Where a frame's classes take gravity from ([depth] gravity): tf_static, config, file or frames."""
+def gravity_source(dcfg, mount_source: str, has_file: bool, has_imu: bool = False) -> str:
+    """Where a frame's classes take gravity from ([depth] gravity), in this order: the mount in /tf_static or
+    set in the config, the log's IMU on the camera's rigid body, a gravity file, the frames."""
     if dcfg.gravity == "frames":
         return "frames"
-    if dcfg.gravity == "mount" or mount_source == "tf_static":
+    if dcfg.gravity == "mount" or mount_source == "tf_static" or not mount_is_default(dcfg):
         return mount_source
-    if has_file:
-        return "file"
-    return "frames" if mount_is_default(dcfg) else "config"
+    if has_imu:
+        return "imu"
+    return "file" if has_file else "frames"
+
+
+def _imu_gravity(imu: list, statics: list, frame_id: str, warnings: list[str]) -> np.ndarray | None:
+    """Up in the depth frame from the recent IMU samples, when /tf_static ties the IMU's frame to the depth
+    camera's (the same rigid body); None (with a warning, once) when it does not."""
+    if not imu:
+        return None
+    last = imu[-1]
+    same = not last.frame_id or last.frame_id.lstrip("/") == frame_id.lstrip("/")
+    tf = None if same else lookup_static(statics, frame_id, last.frame_id)
+    if tf is None and not same:
+        _note(warnings, f"the IMU's frame {last.frame_id} is not tied to the depth frame {frame_id} in /tf_static: "
+                        f"it is not used for gravity")
+        return None
+    R = np.eye(3) if tf is None else tf.matrix()[:3, :3]
+    has_q = last.orientation_cov[0] != -1 and np.linalg.norm(last.orientation) > 0.5
+    return imu_up(np.array([s.linear_acceleration for s in imu]), last.orientation if has_q else None, R)
 
 
 def no_eligible_cause(depth_m: np.ndarray, min_depth: float, max_depth: float) -> str:
@@ -399,7 +426,7 @@ def _classes(planes: Planes, item: Item, cfg, tracker: GravityTracker, calibrato
     if item.gravity == "frames":
         up = tracker.update(planes)
         return reclassify(planes, up, tracker.height, cfg.fspf)
-    if item.gravity == "file":
+    if item.gravity in ("file", "imu"):
         h = floor_height(planes.normals, planes.offsets, planes.counts, item.up)
         tracker.height = h if np.isfinite(h) else tracker.height
         return reclassify(planes, item.up, tracker.height, cfg.fspf)
