@@ -103,11 +103,11 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     cfg = Config()
     cfg.build.depth_rate = rate
     t0 = time.perf_counter()
-    P.SlamFeed = Recorder
+    P.SlamFeed = S.SlamFeed = Recorder  # the one feed (mapping/slamfeed.py) both commands take by name
     try:
         r = S.run_slam(log, cfg, source="kos")
     finally:
-        P.SlamFeed = real
+        P.SlamFeed = S.SlamFeed = real
     doc = {"events": events, "gt": r.ground_truth, "kos_seconds": time.perf_counter() - t0,
            "ate_full_run": S.evaluate(r)["ate"]["rmse"]}
     cache.mkdir(parents=True, exist_ok=True)
