@@ -117,3 +117,34 @@ def test_a_log_with_an_imu_on_the_camera_takes_gravity_from_it(capsys, tmp_path)
             assert s["dropped_pct"] > 10.0  # the floor, as ground
         else:
             assert set(s["gravity"]) == {"frames"} and "is not tied to the depth frame" in stdout
+
+
+def test_build_mount_auto_replaces_a_wrong_tf_static_mount(capsys, tmp_path):
+    """--set depth.mount=auto: /tf_static says pitch 12°, 0.95 m; the floor says 15°, 1.00 m, and the build's
+    depth config takes the floor's (x, y and yaw kept from /tf_static); other commands refuse auto in one line."""
+    from kosmap.frontend.camera import camera_mount
+    from kosmap.frontend.logs.writer import McapWriter
+    from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
+    from kosmap.tools import options as O
+    from kosmap.tools.commands.build import _auto_mount
+
+    cam, room = kinect_v2(), BoxRoom()
+    t0 = 1_700_000_000_000_000_000
+    true = mount_transform([0.1, 0.0, 1.0], np.radians([0.0, 15.0, 0.0]), child="cam")
+    wrong = mount_transform([0.1, 0.0, 0.95], np.radians([0.0, 12.0, 0.0]), child="cam")
+    path = tmp_path / "robot.mcap"
+    with McapWriter(path) as w:
+        w.write(Transforms(t0, (Transform("base_link", "cam", wrong.translation, wrong.rotation, t0),), True, "/tf_static"))
+        w.write(CameraModel(cam.width, cam.height, cam.K, np.zeros(5), "plumb_bob", "cam", "/cam/camera_info", t0))
+        for i in range(6):
+            d, _ = render_depth(room, (0.8 + 0.25 * i, 0.3 - 0.1 * i, 0.15 * i), true, cam, np.random.default_rng(i))
+            w.write(DepthFrame(t0 + (i + 1) * 10**8, np.round(d * 1000).astype(np.uint16), "16UC1", "cam", "/cam/depth"))
+    cfg = O.make_config(None, ["depth.mount=\"auto\""], None, None)
+    resolved = _auto_mount(path, cfg, quiet=True)
+    assert resolved.depth.mount == "config"
+    assert abs(resolved.depth.mount_rpy_deg[1] - 15.0) <= 0.3 and abs(resolved.depth.mount_xyz[2] - 1.0) <= 0.01
+    assert resolved.depth.mount_xyz[0] == pytest.approx(0.1) and abs(resolved.depth.mount_rpy_deg[2]) < 1e-6
+    mount, src = camera_mount([], "cam", resolved.depth)
+    assert src == "config" and abs(mount.translation[2] - 1.0) <= 0.01
+    code, _, err = run(capsys, "planes", path, "--out", tmp_path / "o", "--set", 'depth.mount="auto"')
+    assert code == 2 and "depth.mount = auto is resolved by `kosmap build`" in err

@@ -17,8 +17,10 @@ from typing import Annotated, Optional
 
 import numpy as np
 import typer
+from scipy.spatial.transform import Rotation
 
-from kosmap.frontend.camera import camera_for, camera_mount, config_mount, gravity_up, lookup_static, mount_is_default
+from kosmap.frontend.camera import (OPTICAL_ROTATION, camera_for, camera_mount, config_mount, gravity_up, lookup_static,
+                                    mount_is_default)
 from kosmap.frontend.gravity import GravityTracker, drop_classes, floor_height, imu_up, read_gravity_file, reclassify
 from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.errors import KosmapError, LogError
@@ -444,13 +446,40 @@ def _mount_estimate(calibrator: MountCalibrator, first: tuple[Transform, str] | 
     est = calibrator.estimate(gravity_up(mount), float(mount.translation[2]), src)
     if est is None:
         return None
-    xyz, rpy = list(cfg.depth.mount_xyz), list(cfg.depth.mount_rpy_deg)
+    # x, y and yaw (not seen from the floor) stay the given mount's: camera_link ← base_link of its rotation
+    xyz = [float(v) for v in mount.translation]
+    link = mount.matrix()[:3, :3] @ OPTICAL_ROTATION.T
+    rpy = [float(v) for v in np.degrees(Rotation.from_matrix(link).as_euler("xyz"))]
     if est.differs:
         _note(warnings, f"the floor planes of {est.frames} frames put the depth camera at pitch {est.pitch_deg:.2f}°, "
                         f"roll {est.roll_deg:.2f}°, {est.height_m:.3f} m above the floor; the mount from "
                         f"{GRAVITY_WORDS[src]} says pitch {est.given_pitch_deg:.2f}°, roll {est.given_roll_deg:.2f}°, "
                         f"{est.given_height_m:.3f} m (more than 1° or 2 cm apart): see mount.toml")
-    return est.as_dict() | {"config": est.config_lines(xyz, rpy), "tf_static": est.tf_static_command(xyz, rpy[2])}
+    return est.as_dict() | {"given_xyz": xyz, "given_yaw_deg": rpy[2], "config": est.config_lines(xyz, rpy),
+                            "tf_static": est.tf_static_command(xyz, rpy[2])}
+
+
+def estimate_mount(path: Path, cfg, frames: int = 30) -> tuple[dict | None, int]:
+    """The depth camera's mount from the floor planes of ≤ `frames` frames spread over the log (nothing written):
+    (the estimate as in summary.json's mount_estimate, or None without a floor; the frames read)."""
+    given = replace(cfg.depth, mount="given")
+    probe = replace(cfg, depth=given)
+    total, items, warnings = _log_frames(path, probe, Override(), 1, None)
+    every = max(1, total // frames)
+    items.close()
+    total, items, warnings = _log_frames(path, probe, Override(), every, frames)
+    keep_all = replace(cfg.fspf, drop_classes=[])
+    calibrator, first, n = MountCalibrator(), None, 0
+    try:
+        for item in items:
+            planes = filter_planes(item.depth, item.camera, keep_all, given, item.mount,
+                                   seed=frame_seed(cfg.fspf, item.index))
+            calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
+            first = first or (item.mount, "tf_static" if item.gravity == "tf_static" else "config")
+            n += 1
+    finally:
+        items.close()
+    return _mount_estimate(calibrator, first, probe, warnings), n
 
 
 def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item], warnings: list[str], *,
