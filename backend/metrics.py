@@ -71,6 +71,22 @@ def relation_errors(stamps, poses, relations: np.ndarray, tol: float = 1e-3) -> 
     return et, er, ok
 
 
+def _in_gaps(stamps, relations: np.ndarray, tol: float) -> np.ndarray:
+    """Per relation: every stamp of it that the trajectory lacks lies in a gap of the trajectory (between scans more
+    than 3 median scan periods apart, or outside its span), as where a damaged or cut log lost its scans."""
+    t = np.sort(np.asarray(stamps, dtype=float))
+    period = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    out = np.ones(len(relations), bool)
+    for col in (0, 1):
+        q = relations[:, col]
+        i = np.clip(np.searchsorted(t, q), 1, len(t) - 1)
+        found = np.minimum(np.abs(t[i - 1] - q), np.abs(t[i] - q)) <= tol
+        outside = (q < t[0] - tol) | (q > t[-1] + tol)
+        gap = (t[i] - t[i - 1]) > 3 * period
+        out &= found | outside | gap
+    return out
+
+
 def _ms(v: np.ndarray) -> dict:
     return {"mean": float(np.mean(v)) if len(v) else float("nan"), "std": float(np.std(v)) if len(v) else float("nan")}
 
@@ -85,11 +101,12 @@ def relations_metric(stamps, poses, relations: np.ndarray | str | Path, tol: flo
     rel = read_relations(relations) if isinstance(relations, (str, Path)) else np.asarray(relations, dtype=float)
     et, er, ok = relation_errors(stamps, poses, rel, tol)
     missing = int((~ok).sum())
-    if missing > max_missing * len(rel):
+    lost = int((~ok & _in_gaps(stamps, rel, tol)).sum())  # scans a damaged or cut log lost: not a sign of another log
+    if ok.any() and missing - lost > max_missing * len(rel) or not ok.any() and missing:
         raise MetricsError(f"{missing} of {len(rel)} relations name scan times not in the trajectory (tolerance {tol} s); "
                            f"is the relations file for this log?")
     deg = np.degrees(er)
-    return {"n": int(ok.sum()), "missing": missing,
+    return {"n": int(ok.sum()), "missing": missing, "in_gaps": lost,
             "abs_trans": _ms(et), "sq_trans": _ms(et ** 2), "abs_rot_deg": _ms(deg), "sq_rot_deg2": _ms(deg ** 2),
             "max_trans": float(et.max()) if len(et) else float("nan")}
 

@@ -171,7 +171,7 @@ class Slam:
     def _predict_with_gyro(self, stamp_ns: int, odom_pose: np.ndarray | None) -> np.ndarray | None:
         """The pose the front end predicts from: the wheel odometry's translation, the gyro's yaw (when the samples
         cover the scan interval; otherwise the wheels' yaw). Identity to the front end when there is no gyro."""
-        if odom_pose is None or not ((self.gcfg.imu_frontend and self.expect_imu) or self.gcfg.calibrate_every):
+        if odom_pose is None or not ((self.gcfg.imu_frontend and self.expect_imu) or self.gcfg.calibrate_every or self._leaning):
             self._prev_scan = None if odom_pose is None else (int(stamp_ns), np.asarray(odom_pose, dtype=float))
             self._fused = None if odom_pose is None else np.asarray(odom_pose, dtype=float)
             return odom_pose

@@ -22,6 +22,13 @@ class DepthConfig(StageConfig):
     fov_v_deg: float = param(60.0, lo=1.0, hi=179.0, doc="vertical field of view when no CameraInfo", unit="deg")
     mount_xyz: list = param([0.0, 0.0, 1.0], doc="camera_link in base_link when /tf_static has no mount", unit="m")
     mount_rpy_deg: list = param([0.0, 0.0, 0.0], doc="camera_link roll, pitch, yaw in base_link (pitch > 0 looks down)", unit="deg")
+    mount: str = param("given", choices=("given", "auto", "config"), doc="the depth camera's mount: given = /tf_static's, "
+                       "else mount_*; config = mount_* even when /tf_static has one; auto = `kosmap build` estimates "
+                       "pitch, roll and height from the log's floor planes first (kosmap planes reports the same)")
+    gravity: str = param("auto", choices=("auto", "mount", "frames"), doc="where plane classes take gravity from: "
+                         "auto = /tf_static's mount, else a gravity file beside the images, else mount_* when set, else "
+                         "the frames (the dominant level plane family, tracked: frontend/gravity.py); mount = the "
+                         "mount always (a level camera at 1 m by default); frames = the frames always")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -112,6 +119,12 @@ OPTICAL_ROTATION = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]
 BASE_FRAMES = ("base_link", "base_footprint")
 
 
+def mount_is_default(cfg: DepthConfig) -> bool:
+    """Whether [depth] mount_xyz / mount_rpy_deg are the defaults (nobody said where the camera is)."""
+    d = DepthConfig()
+    return list(cfg.mount_xyz) == list(d.mount_xyz) and list(cfg.mount_rpy_deg) == list(d.mount_rpy_deg)
+
+
 def mount_transform(xyz, rpy, parent: str = "base_link", child: str = "camera_optical_frame") -> Transform:
     """base_link ← camera optical frame, from the camera_link mount: xyz (m) and roll, pitch, yaw (rad).
 
@@ -170,12 +183,20 @@ def camera_mount(transforms, frame_id: str, cfg: DepthConfig | None = None) -> t
     `transforms` are Transforms records (or Transform) from /tf_static; the depth image's frame_id is taken
     to be its optical frame (REP 103). Returns the transform and where it came from ("tf_static" or "config").
     """
+    cfg = cfg or DepthConfig()
+    if cfg.mount == "auto":
+        from kosmap.frontend.errors import ConfigError
+
+        raise ConfigError("depth.mount = auto is resolved by `kosmap build` (from the log's floor planes); for this "
+                          "command put the estimate `kosmap planes` reports (mount.toml) into [depth], or use given")
+    if cfg.mount == "config":
+        return config_mount(cfg, child=frame_id.lstrip("/")), "config"
     if frame_id:
         for base in BASE_FRAMES:
             tf = lookup_static(transforms, base, frame_id)
             if tf is not None:
                 return tf, "tf_static"
-    return config_mount(cfg or DepthConfig(), child=frame_id.lstrip("/")), "config"
+    return config_mount(cfg, child=frame_id.lstrip("/")), "config"
 
 
 def gravity_up(mount: Transform | None) -> np.ndarray:

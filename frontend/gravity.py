@@ -94,6 +94,11 @@ def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
     up, fwd, left = axes_from_up(up)
     planes.classes = classify(planes.normals, up, fwd, left, cfg.slanted_min_deg, cfg.slanted_max_deg, planes.offsets,
                               height, cfg.ground_max_height)
+    return drop_classes(planes, cfg)
+
+
+def drop_classes(planes: Planes, cfg) -> Planes:
+    """The planes without those of cfg.drop_classes (their points counted as dropped)."""
     drop = np.isin(planes.classes, [PLANE_CLASSES.index(c) for c in cfg.drop_classes])
     if not drop.any():
         return planes
@@ -103,6 +108,19 @@ def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
     out.stats.dropped += lost
     out.stats.planes = len(out)
     return out
+
+
+def imu_up(accelerations: np.ndarray, orientation: np.ndarray | None, cam_from_imu: np.ndarray) -> np.ndarray:
+    """Up in the camera's optical frame from an IMU on the same rigid body: its orientation (x, y, z, w; world z up,
+    REP 145) when it gives one, else its mean specific force (at rest +g, pointing up), turned into the camera
+    frame by cam_from_imu (3×3, from /tf_static)."""
+    if orientation is not None:
+        x, y, z, w = np.asarray(orientation, float) / np.linalg.norm(orientation)
+        up = np.array([2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)])  # R(q)ᵀ·e_z
+    else:
+        up = np.asarray(accelerations, float).reshape(-1, 3).mean(axis=0)
+    up = np.asarray(cam_from_imu, float) @ up
+    return up / np.linalg.norm(up)
 
 
 def read_gravity_file(folder: Path) -> tuple[np.ndarray, Path] | None:

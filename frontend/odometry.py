@@ -69,6 +69,9 @@ class OdometryConfig(StageConfig):
     recovery_angular_deg: float = param(90.0, lo=0.0, doc="recovery search half window in yaw", unit="deg")
     densify_max_gap: float = param(0.3, lo=0.0, doc="fill submap walls between returns up to this far apart (0 = off)", unit="m")
     point_spacing: float = param(0.05, lo=0.0, doc="drop a return nearer than this to the last one kept, in scan order (0 = keep all)", unit="m")
+    degenerate_calibrate_every: int = param(100, lo=0, doc="every n keyframes, when ≥ 20 % of the matches since the last "
+                                            "check were degenerate (held along the odometry), re-estimate the odometry "
+                                            "scale while running (0 = never; [graph] calibrate_every does it always)")
     degenerate_ratio: float = param(0.1, lo=0.0, hi=1.0, doc="a scan whose own surfaces fix one direction less than "
                                     "this × the other (scan_geometry: the returns' normals) is held at the wheel-odometry "
                                     "prediction along that direction (0 = off)")
@@ -320,6 +323,8 @@ class SubmapOdometry:
         self.last_key: np.ndarray | None = None
         self.score_ema = 0.0  # running mean of the fine match score, for failure detection
         self.recoveries = 0
+        self.matches = 0  # scans matched
+        self.degenerate = 0  # … of which degenerate (the odometry held one direction)
 
     def _predict(self, odom_pose: np.ndarray | None) -> tuple[np.ndarray, bool]:
         if odom_pose is not None and self.prev_odom is not None:
@@ -376,6 +381,7 @@ class SubmapOdometry:
             geometry = scan_geometry(pts, cfg.densify_max_gap)
             extra = degeneracy_prior(info, cfg.degenerate_ratio, geometry, float(pred[2]))
             if extra is not None:  # a corridor: solve again from the prediction, the odometry holding the weak direction
+                self.degenerate += 1
                 W = W + extra
                 p1, _, _ = gauss_newton(c.values, c.origin[0], c.origin[1], c.resolution, pts64, prior, prior, W,
                                         cfg.gn_iterations, welsch, c.sigma)
@@ -426,6 +432,7 @@ class SubmapOdometry:
         else:
             pose, score, info = self._match(pts, pred, has_odom)
             matched = True
+            self.matches += 1
             if score < cfg.recovery_ratio * self.score_ema:
                 # A poor match: the prediction may be wrong (stale odometry that then jumps, as in MIT CSAIL;
                 # scans out of order or a wheel slip, as in Intel). Search the submap exhaustively over a wide

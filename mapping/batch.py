@@ -64,7 +64,8 @@ class LogRecord:
     status: str  # "built", "skipped" (unchanged since the last batch) or "failed"
     error: str | None = None  # the one-line error of a failed log
     duration_s: float | None = None  # of log
-    build_s: float | None = None  # wall time of the build (as its report says), or of the check that skipped it
+    build_s: float | None = None  # wall time of the build (as its report says; of the last one when skipped)
+    check_s: float | None = None  # hashing the inputs and outputs (of a skipped log: all the work it cost)
     realtime_factor: float | None = None
     f1: dict[str, float] = field(default_factory=dict)  # "<map>" → F1 at 0.10 m against the blueprint
     f1_seen: dict[str, float] = field(default_factory=dict)  # the same over the walls the run saw
@@ -86,12 +87,14 @@ class LogRecord:
 def find_logs(items: list[Path], list_file: Path | None = None, exclude: Path | None = None) -> list[Path]:
     """The logs named by `items` (log files, or folders searched recursively for .mcap/.bag/.clf) and by
     `list_file` (one path a line, relative to the list's folder; # starts a comment), in that order, each once;
-    files under `exclude` (the output folder) are left out."""
+    files under `exclude` (the output folder), and in a folder searched, the outputs of kosmap runs (a folder with
+    a kosmap manifest: a build's kosmap.mcap) are left out."""
     found: list[Path] = []
     for it in items:
         p = Path(it)
         if p.is_dir():
-            found += sorted(q for q in p.rglob("*") if q.suffix in LOG_SUFFIXES and q.is_file())
+            found += sorted(q for q in p.rglob("*") if q.suffix in LOG_SUFFIXES and q.is_file()
+                            and not (q.parent / MANIFEST).exists())
         elif p.exists():
             found.append(p)
         else:
@@ -244,7 +247,7 @@ def run_task(task: BatchTask) -> LogRecord:
         if up_to_date(state, inputs, task.out):
             rec = summarise(LogRecord(task.name, str(task.log), "skipped"),
                             json.loads((task.out / "metrics.json").read_text()))
-            rec.build_s = time.perf_counter() - t0
+            rec.check_s = time.perf_counter() - t0
             return rec
         Path(task.state).unlink(missing_ok=True)  # whatever happens now, the last build no longer stands
         workers, rec.worker_note = _frame_workers(task)

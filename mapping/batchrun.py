@@ -69,14 +69,14 @@ def run_batch(items: list[Path], list_file: Path | None, out: Path, cfg: Config,
     sizing = local_sizing(opt.workers)
     tasks = plan(items, list_file, out, cfg, opt, None if opt.scheduler else sizing.build_workers)
     inputs = tuple(t.log for t in tasks) + tuple(x for x in (opt.blueprint, *opt.reads) if x is not None)
-    with writing(out, BATCH_FILES, inputs=inputs, command="batch") as stage:
+    # the cluster first: a scheduler that does not answer leaves nothing behind in DIR
+    with client(opt.scheduler, sizing) as c, writing(out, BATCH_FILES, inputs=inputs, command="batch") as stage:
         dest = Path(stage) if stage is not None else out  # the batch's own files, put in place when all are written
-        with client(opt.scheduler, sizing) as c:
-            where = (f"the Dask scheduler {opt.scheduler}" if opt.scheduler else f"a local Dask cluster of "
-                     f"{sizing.workers} worker(s), {sizing.build_workers} process(es) per build")
-            if on_start is not None:
-                on_start(len(tasks), where)
-            records = run_tasks(c, tasks, on_done)
+        where = (f"the Dask scheduler {opt.scheduler}" if opt.scheduler else f"a local Dask cluster of "
+                 f"{sizing.workers} worker(s), {sizing.build_workers} process(es) per build")
+        if on_start is not None:
+            on_start(len(tasks), where)
+        records = run_tasks(c, tasks, on_done)
         map_name = fleet_map_name(records, cfg, opt.map_name)
         doc = {"kosmap": "batch", "summary": summary(records), "logs": [r.as_dict() for r in records],
                "cluster": {"scheduler": opt.scheduler or "local", "where": where,

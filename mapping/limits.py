@@ -59,7 +59,7 @@ BY_KEY: dict[str, tuple[float | None, float | None, str]] = {
     "graph.loop_max_candidates": (None, 10 ** 4, "ten thousand candidates per node"),
     "graph.loop_field_cache": (None, 10 ** 4, "ten thousand fields in memory"),
     "compare.max_points": (None, 10 ** 8, "a hundred million cells"),
-    "compare.max_canvas_cells": (None, 10 ** 9, "a billion cells (4 GB per canvas)"),
+    "compare.max_canvas_cells": (None, 2 * 10 ** 8, "as many cells as a grid may have (mapping/grid.py MAX_CELLS)"),
     "build.mcap_plane_points": (None, 10 ** 7, "more points than a depth image has"),
     "build.in_flight": (None, 10 ** 4, "ten thousand depth frames in memory"),
     "localize.min_particles": (None, 10 ** 7, "ten million particles"),

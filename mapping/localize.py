@@ -214,8 +214,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         if inp.has_odom:
             d = se2.between(u_last, u)
             update = i == 0 or gap or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
-        else:
-            update = True
+        else:  # no odometry: an update every no_odom_period_s, the particles diffused for the time since
+            update = i == 0 or gap or inp.stamps[i] - t_last >= cfg.no_odom_period_s
         if update and len(pts) >= cfg.min_points:
             if inp.has_odom:
                 flt.move(u_last, u)

@@ -33,6 +33,7 @@ class LocalizeConfig(StageConfig):
     update_min_a_deg: float = param(15.0, lo=0.0, doc="rotation between filter updates (AMCL update_min_a is 30°; a 70° view turned 30° sees half a new scene)", unit="deg")
     resample_interval: int = param(2, lo=1, doc="filter updates between resamplings (AMCL resample_interval)")
     odom_alpha: list = param([0.2, 0.2, 0.2, 0.2], doc="odometry motion model noise α1..α4 (AMCL odom_alpha1..4, diff model)")
+    no_odom_period_s: float = param(0.5, lo=0.0, doc="without odometry, a filter update every this long (update_min_d at a walking pace; every scan would count one view many times)", unit="s")
     no_odom_sigma_xy: float = param(0.3, lo=0.0, lo_open=True, doc="random walk per second without odometry", unit="m")
     no_odom_sigma_yaw_deg: float = param(30.0, lo=0.0, lo_open=True, doc="… in heading", unit="deg")
     # the measurement model (AMCL likelihood_field: z_hit 0.95, z_rand 0.05, sigma_hit 0.2, max_beams 30)

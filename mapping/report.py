@@ -347,8 +347,8 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
         B.append(("table", ["source", "scans", "keyframes", "loops", "heading priors", "ATE RMSE (m)", "ATE max (m)",
                             "front end alone (m)", "wheel odometry (m)", "self-consistency", "SLAM time (s)"], rows))
         B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how far "
-                       "its scans must move to lie on the earlier ones' walls (median, and 90th percentile), and how many "
-                       "loops the solution misses by more than twice their σ; a consistent map is off by a few mm to 2 cm "
+                       "far one rigid move brings its scans onto the earlier ones' walls (median, and 90th percentile), and how "
+                       "many loops the solution misses by more than twice their σ; a consistent map: a few mm to 2 cm "
                        "(backend/consistency.py)."))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))

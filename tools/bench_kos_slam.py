@@ -1,6 +1,7 @@
 """Benchmark: KOS SLAM on simulated office logs with and without the gyro, several seeds and depth rates.
 
     .venv/bin/python -m kosmap.tools.bench_kos_slam LOG.mcap [LOG.mcap …] [--rates 10 5] [--laser] [--cache DIR] [--out docs]
+    .venv/bin/python -m kosmap.tools.bench_kos_slam --harsh [--laser]      # the harsh-odometry office and corridors
 
 Per log, the depth frames go through FSPF+ and KOS once (at the highest rate asked) and the SLAM inputs are
 recorded: every call the run makes to mapping.slamfeed.SlamFeed (odometry, KOS scans, IMU samples, and when log
@@ -11,6 +12,8 @@ Configurations: the defaults with the log's IMU; the same with the odometry scal
 final solve (not fed back to the front end while running); without the IMU; with the IMU but the odometry scale
 fixed; with the IMU but the gyro bias left in the noise. Truths (odometry distance scale, gyro turn-on bias) come from the simulator's
 MCAP metadata (tools.simulate.log.simulation_truth). `--laser` also runs laser SLAM on logs that have a laser.
+`--harsh` adds (simulated once into --cache) the office and the long-corridor world (tools/simulate/worlds/corridors.yaml)
+with harsh but ordinary wheel odometry: 2 % and 2.8 % wheel radius errors and a 0.3°/m heading bias (HARSH).
 Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
 """
 
@@ -38,6 +41,25 @@ CONFIGS = {
     "imu, scale fixed": {"odom_scale": "fixed"},
     "imu, bias fixed": {"gyro_bias": "fixed"},
 }
+
+
+HARSH = {"odom_scale_error_left": 0.02, "odom_scale_error_right": 0.028, "odom_heading_bias_deg_per_m": 0.3,
+         "depth_rate": 10.0}
+HARSH_WORLDS = {"office": "office", "corridors": str(REPO / "tools" / "simulate" / "worlds" / "corridors.yaml")}
+
+
+def harsh_logs(cache: Path, seed: int = 0) -> list[Path]:
+    """The office and the long-corridor world with HARSH odometry, simulated into `cache` unless already there."""
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+
+    cache.mkdir(parents=True, exist_ok=True)
+    out = []
+    for name, world in HARSH_WORLDS.items():
+        log = cache / f"harsh-{name}-{seed}.mcap"
+        if not log.exists():
+            simulate(load_world(world), SimConfig(seed=seed, **HARSH), log)
+        out.append(log)
+    return out
 
 
 def _key(log: Path, rate: float) -> str:
@@ -206,13 +228,18 @@ def markdown(res: list[dict], lasers: list[dict], meta: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("logs", nargs="+", type=Path)
+    ap.add_argument("logs", nargs="*", type=Path)
+    ap.add_argument("--harsh", action="store_true", help="also the office and the corridor world with harsh wheel odometry")
     ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
     ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
     a = ap.parse_args()
+    if a.harsh:
+        a.logs = list(a.logs) + harsh_logs(a.cache)
+    if not a.logs:
+        ap.error("give a log or --harsh")
     res, lasers = [], []
     top = max(a.rates)
     for log in a.logs:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import platform
 import time
 from pathlib import Path
@@ -73,11 +74,15 @@ def _fmt(v, d=3):
 
 def write(rows: list[dict], out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    doc = {"processor": platform.processor() or platform.machine(), "rows": rows}
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    doc = {"processor": platform.processor() or platform.machine(), "cpus": os.cpu_count(), "load_1min": load,
+           "rows": rows}
     (out / "localize.json").write_text(json.dumps(doc, indent=1) + "\n")
     lines = ["# `kosmap localize` on simulated depth-camera logs in their blueprints",
              "", "Written by `tools/bench_localize.py`: 10 Hz depth at half resolution, no laser, no initial pose; "
-             "errors against the log's ground truth, not aligned, after the filter first claimed a pose.", "",
+             "errors against the log's ground truth, not aligned, after the filter first claimed a pose. "
+             f"{os.cpu_count()} CPUs, 1-minute load average {_fmt(load, 1)} at the end: with other work on the machine "
+             "the wall-clock factor understates the speed, the CPU one does not.", "",
              "| log | s | read wall / CPU s | filter wall / CPU s | × real time wall / CPU | total ÷ read | found at s | lost | "
              "RMSE m | median m | heading RMSE ° |", "|" + "---|" * 11]
     for r in rows:

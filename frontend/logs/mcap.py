@@ -1,8 +1,10 @@
-"""MCAP adapter: the `mcap` library reads the summary (and an unindexed file), our `_chunk_messages` the indexed
-chunks, rosbags decodes CDR (or ROS 1) messages.
+"""MCAP adapter: the `mcap` library reads the summary (and the records of an unindexed file), our `_chunk_messages`
+the indexed chunks, rosbags decodes CDR (or ROS 1) messages.
 
 mcap_ros2's own decoder walks arrays element by element in Python (~1000× slower on depth images;
-docs/dependencies.md), so only the container is read with `mcap`.
+docs/dependencies.md), so only the container is read with `mcap`. Every chunk is decompressed here within its stated
+size (frontend/logs/inflate.py) and checked against its CRC; a damaged chunk is skipped, read or fatal as [topics]
+on_damage says, with a warning giving its time range (docs/damaged_logs.md).
 """
 
 from __future__ import annotations

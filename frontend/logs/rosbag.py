@@ -1,10 +1,13 @@
-"""ROS 1 bag adapter: rosbags reads the index and decodes; a linear chunk scan is the fallback.
+"""ROS 1 bag adapter: rosbags reads the index and decodes; chunks are read here; a linear chunk scan is the fallback.
 
-The fallback serves bags whose index is missing (recording cut off) or non-standard (rosbags asserts on
-the CCNY scan_tools demo bag): it walks the records in file order (bag format 2.0) and yields
-what it can decode, stopping with a warning at damage. A bag whose data ends early (cut inside a record, or
-before the index its header points to) is truncated: a warning says how much was read, and a LogError says so
-when not one message could be.
+The indexed read takes rosbags' parsed index (connections, chunk infos, per-connection entries) and reads each
+chunk itself, so that a chunk that does not decompress is skipped with a warning giving its time range instead of
+ending the read (rosbags' `messages` raises at the first). The fallback serves bags whose index is missing
+(recording cut off) or non-standard (rosbags asserts on the CCNY scan_tools demo bag): it walks the records in
+file order (bag format 2.0), skipping damaged chunks the same way. A bag whose data ends early (cut inside a
+record, or before the index its header points to) is truncated: a warning says how much was read (the whole
+messages of an uncompressed chunk cut by the file's end included), and a LogError says so when not one message
+could be. Chunks decompress within their stated size (frontend/logs/inflate.py).
 """
 
 from __future__ import annotations

@@ -122,6 +122,9 @@ def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str
     out.mkdir(parents=True, exist_ok=True)
     try:
         _recover(out)
+        for pat in patterns:  # half-written files of a build of an earlier kosmap that wrote in place
+            for p in out.glob(pat + ".partial"):
+                p.unlink(missing_ok=True)
         present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
         here = out.resolve()
         for x in inputs:
@@ -214,8 +217,8 @@ def _signals_held() -> Iterator[list]:
 
 def _recover(out: Path) -> None:
     """Clear what killed runs left in `out`: undo one killed while moving its files in (its manifest says
-    "committing"), remove the staging folders of processes that are gone, and the leftovers of builds of earlier
-    kosmap versions that wrote in place (a spill folder, `.partial` files)."""
+    "committing"), remove the staging folders of processes that are gone, and the spill folder of a build of an
+    earlier kosmap that wrote in place."""
     try:
         doc = _manifest(out)
     except (OSError, ValueError):
@@ -227,9 +230,6 @@ def _recover(out: Path) -> None:
             shutil.rmtree(p, ignore_errors=True)
     for p in out.glob(SPILL_PREFIX + "*"):
         shutil.rmtree(p, ignore_errors=True)
-    if doc is not None and doc.get("in_progress"):
-        for p in out.glob("*.partial"):
-            p.unlink(missing_ok=True)
 
 
 def _undo(out: Path, doc: dict) -> None:

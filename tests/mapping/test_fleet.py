@@ -73,6 +73,9 @@ def test_log_names_come_from_the_files_and_collisions_are_told_apart(tmp_path):
         (tmp_path / sub / "run.mcap").write_bytes(b"x")
     (tmp_path / "robot1" / "other.bag").write_bytes(b"x")
     (tmp_path / "robot1" / "notes.txt").write_text("not a log")
+    (tmp_path / "robot1" / "built").mkdir()  # a build's folder: its kosmap.mcap is an output, not a log
+    (tmp_path / "robot1" / "built" / "kosmap.mcap").write_bytes(b"x")
+    (tmp_path / "robot1" / "built" / MANIFEST).write_text("{}")
     logs = find_logs([tmp_path])
     assert [p.relative_to(tmp_path).as_posix() for p in logs] == ["robot1/other.bag", "robot1/run.mcap",
                                                                   "robot2/run.mcap"]
@@ -116,3 +119,17 @@ def test_a_build_is_up_to_date_only_with_the_same_inputs_and_untouched_outputs(t
     assert not up_to_date(state, inputs, out)
     (out / MANIFEST).write_text(json.dumps({"kosmap": "build", "in_progress": True}))
     assert output_hashes(out) is None  # a build that never finished is no build
+
+
+def test_a_build_in_a_daemonic_worker_runs_serially_and_says_why(monkeypatch, tmp_path):
+    """A daemonic process may not start children: the build runs in it alone (same maps), with a note."""
+    from types import SimpleNamespace
+
+    from kosmap.mapping import batch
+    from kosmap.mapping.config import Config
+
+    task = batch.BatchTask("x", tmp_path / "x.mcap", tmp_path / "x", tmp_path / "x.json", Config(), workers=None)
+    assert batch._frame_workers(task) == (None, None)
+    monkeypatch.setattr(batch.mp, "current_process", lambda: SimpleNamespace(daemon=True))
+    workers, note = batch._frame_workers(task)
+    assert workers == 0 and "DASK_DISTRIBUTED__WORKER__DAEMON=False" in note

@@ -1,6 +1,6 @@
-"""`kosmap slam --source laser` and `kosmap build` feed SLAM through one path (mapping/slamfeed.py): the same log
-gives the same laser trajectory from both, and with harsh wheel odometry (2 % and 2.8 % wheel radius errors,
-0.3°/m heading bias) the build's laser SLAM stays within 0.10 m ATE."""
+"""`kosmap slam --source laser|kos` and `kosmap build` feed SLAM through one path (mapping/slamfeed.py): the same
+log gives the same laser trajectory and the same KOS trajectory from both, and with harsh wheel odometry (2 % and
+2.8 % wheel radius errors, 0.3°/m heading bias) the build's laser SLAM stays within 0.10 m ATE."""
 
 from __future__ import annotations
 
@@ -18,9 +18,9 @@ def test_slam_and_build_give_one_trajectory_with_harsh_odometry(tmp_path):
     from kosmap.tools.simulate import SimConfig, load_world, simulate
 
     log = tmp_path / "office.mcap"
-    # a 40 Hz laser (the simulator's Hokuyo), thinned to [build] laser_rate by both commands; the depth camera is
-    # not used here: a tiny, rare depth image keeps the log small
-    cfg = SimConfig(seed=5, duration=150.0, depth_rate=0.2, depth_width=32, depth_height=24, compression="lz4",
+    # a 40 Hz laser (the simulator's Hokuyo), thinned to [build] laser_rate by both commands; a small depth image
+    # at 2 Hz keeps the log small and still gives KOS scans
+    cfg = SimConfig(seed=5, duration=100.0, depth_rate=2.0, depth_width=128, depth_height=106, compression="lz4",
                     odom_scale_error_left=0.02, odom_scale_error_right=0.028, odom_heading_bias_deg_per_m=0.3)
     simulate(load_world("office"), cfg, log)
     r = run_slam(log, Config())
@@ -33,3 +33,6 @@ def test_slam_and_build_give_one_trajectory_with_harsh_odometry(tmp_path):
     ate_build = b.metrics["slam"]["laser"]["ate"]["rmse"]
     assert ate_build <= 0.10 and m["ate"]["rmse"] <= 0.10, (ate_build, m["ate"])
     assert m["ate_odometry"]["rmse"] > 5 * ate_build  # the odometry alone is far off: SLAM did the work
+    k = run_slam(log, Config(), "kos")
+    t, p = read_tum(tmp_path / "build" / "trajectory_kos.tum")
+    assert len(t) == len(k.stamps) >= 150 and np.abs(p[:, :2] - k.poses[:, :2]).max() <= 1e-4  # measured 5e-7 m

@@ -190,6 +190,25 @@ def test_the_merged_map_of_two_runs_scores_at_least_the_better_run(first, fleet_
     assert doc["fleet"]["merged"]["runs"] == 3 and doc["fleet"]["merged"]["f1"] > 0.7
 
 
+@pytest.mark.slow
+def test_an_existing_cluster_by_address_builds_the_same_maps(first, fleet_logs, tmp_path):
+    """`--scheduler`: a cluster started elsewhere; its workers are daemonic (Dask's default), so the build runs
+    without processes of its own, says so, and makes the same maps."""
+    from distributed import LocalCluster
+
+    out, _, _, _ = first
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        code = main(["batch", str(fleet_logs["logs"] / "b.mcap"), "--out", str(tmp_path / "o"), "--scheduler",
+                     cluster.scheduler_address, "--quiet"])
+    assert code == 0
+    doc = json.loads((tmp_path / "o" / "batch.json").read_text())
+    (r,) = doc["logs"]
+    assert r["status"] == "built" and "daemonic" in r["worker_note"] and doc["cluster"]["scheduler"] != "local"
+    for fn in ("map_laser.pgm", "map_kos_obstacle.pgm", "trajectory_laser.tum", "trajectory_kos.tum"):
+        assert (tmp_path / "o" / "b" / fn).read_bytes() == (out / "b" / fn).read_bytes(), fn
+    assert doc["fleet"]["merged"]["runs"] == 1 and doc["fleet"]["changes"]["regions"] == []  # nothing to compare
+
+
 def test_without_dask_batch_says_how_to_get_it(monkeypatch, tmp_path, capsys):
     import sys
 

@@ -20,7 +20,7 @@ def status_line(r) -> str:
     f1 = " ".join(f"F1 {m} {v:.3f}" for m, v in list(r.f1.items())[:2])
     rt = f", {r.realtime_factor:.1f}× real time" if r.realtime_factor else ""
     what = "built  " if r.status == "built" else "skipped"
-    tail = f" (unchanged; {r.build_s:.1f} s to check)" if r.status == "skipped" else f" in {r.build_s:.1f} s{rt}"
+    tail = f" (unchanged; {r.check_s:.1f} s to check)" if r.status == "skipped" else f" in {r.build_s:.1f} s{rt}"
     note = f" [{r.worker_note}]" if r.worker_note else ""
     return f"{what} {r.name}{tail}" + (f"; {f1}" if f1 else "") + note
 
@@ -35,7 +35,7 @@ def register(app: typer.Typer) -> None:
         blueprint_scale: Annotated[Optional[float], typer.Option("--blueprint-scale", help="Metres per pixel of a plain-image blueprint.")] = None,
         scheduler: Annotated[Optional[str], typer.Option("--scheduler", help="An existing Dask scheduler (tcp://host:8786); default: a local cluster on this machine.")] = None,
         workers: Annotated[Optional[int], typer.Option("--workers", "-j", help="Builds at once on the local cluster (default: one per two cores, as memory allows); the cores are shared among them.")] = None,
-        map_name: Annotated[Optional[str], typer.Option("--map", help="The map merged and compared across runs, e.g. laser or kos_obstacle (default: the KOS map SLAM ran on, else the laser map).")] = None,
+        map_name: Annotated[Optional[str], typer.Option("--map", help="The map merged and compared across runs, e.g. kos_obstacle (default: the laser map when every run has one, else the KOS map SLAM ran on).")] = None,
         quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar or status lines.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
         info_topic: O.InfoTopicOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,

@@ -38,6 +38,27 @@ def print_headline(metrics: dict, out: Path) -> None:
     print(f"report: {out / 'report.html'} (and report.md; maps, trajectories, metrics.json, kosmap.mcap in {out})")
 
 
+def _auto_mount(log: Path, cfg, quiet: bool):
+    """--set depth.mount=auto: the depth camera's pitch, roll and height from the log's floor planes (kosmap planes'
+    mount calibration, docs/planes.md) replace the given mount for this build."""
+    from dataclasses import replace
+
+    from kosmap.tools.commands.planes import estimate_mount
+
+    est, n = estimate_mount(log, cfg)
+    if est is None:
+        raise KosmapError(f"depth.mount=auto: no floor plane in {n} depth frames of {log}; give the mount in "
+                          f"[depth] mount_xyz / mount_rpy_deg (or /tf_static) instead")
+    xyz = est["given_xyz"]
+    if not quiet:
+        print(f"mount from the floor ({est['frames']} frames): pitch {est['pitch_deg']:.2f}°, roll "
+              f"{est['roll_deg']:.2f}°, height {est['height_m']:.3f} m (given: pitch {est['given_pitch_deg']:.2f}°, "
+              f"roll {est['given_roll_deg']:.2f}°, height {est['given_height_m']:.3f} m)", file=sys.stderr)
+    depth = replace(cfg.depth, mount="config", mount_xyz=[xyz[0], xyz[1], est["height_m"]],
+                    mount_rpy_deg=[est["roll_deg"], est["pitch_deg"], est["given_yaw_deg"]])
+    return replace(cfg, depth=depth)
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def build(
@@ -62,6 +83,8 @@ def register(app: typer.Typer) -> None:
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         if blueprint_scale is not None and blueprint is None:
             raise KosmapError("--blueprint-scale belongs to --blueprint (a plain image's metres per pixel)")
+        if cfg.depth.mount == "auto":
+            cfg = _auto_mount(log, cfg, quiet)
         with build_bar(quiet) as tick:
             res = run(log, out, cfg, blueprint=blueprint, workers=workers, on_progress=tick,
                       say=None if quiet else (lambda m: print(m, file=sys.stderr)), blueprint_scale=blueprint_scale,

@@ -11,20 +11,24 @@ import re
 import shutil
 import tempfile
 from collections.abc import Generator, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Annotated, Optional
 
 import numpy as np
 import typer
+from scipy.spatial.transform import Rotation
 
-from kosmap.frontend.camera import camera_for, camera_mount, config_mount
+from kosmap.frontend.camera import (OPTICAL_ROTATION, camera_for, camera_mount, config_mount, gravity_up, lookup_static,
+                                    mount_is_default)
+from kosmap.frontend.gravity import GravityTracker, drop_classes, floor_height, imu_up, read_gravity_file, reclassify
+from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.errors import KosmapError, LogError
 from kosmap.frontend.fspf import filter_planes, frame_seed, warmup
 from kosmap.frontend.logs.images import camera_model, check_depth_scale, read_camera_file
 from kosmap.frontend.planes import Planes
 from kosmap.mapping.runtime.outdir import check_out
-from kosmap.frontend.records import CameraModel, DepthFrame, Transform, Transforms
+from kosmap.frontend.records import CameraModel, DepthFrame, Imu, Transform, Transforms
 from kosmap.tools import options as O
 
 CLOUD_TOPIC = "/kosmap/planes/points"
@@ -45,6 +49,8 @@ class Item:
     mount: Transform
     source: str  # topic, or dataset/name
     frame_id: str
+    gravity: str = "tf_static"  # where the classes take gravity from: tf_static, config, file, frames
+    up: np.ndarray | None = None  # up in the optical frame, from a gravity file
 
 
 @dataclass
@@ -95,9 +101,11 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
     from kosmap.frontend.logs import detect_topics, open_log
     from kosmap.frontend.logs.images import ImageFolder
 
+    gravity_file = None
     if path.is_dir():  # the folder reader applies the camera file and the scale itself
         log = ImageFolder(path, ov.camera_file, ov.depth_scale, pattern=pattern)
         ov = Override()
+        gravity_file = read_gravity_file(path)
     elif pattern:
         raise KosmapError(f"--glob {pattern} applies to a folder of depth images; {path} is a log")
     else:
@@ -112,6 +120,8 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
     if limit is not None:
         total = min(total, limit)
     wanted = list(det.depth) + [i for i in det.info.values() if i] + ([det.tf_static] if det.tf_static else [])
+    if det.imu and not path.is_dir():
+        wanted.append(det.imu)
     warnings = log.warnings  # the reader adds to it while reading (e.g. a truncated log)
     if ov.camera_file is not None and any(det.info.values()):
         _note(warnings, f"--camera {ov.camera_file} replaces the camera info of "
@@ -122,9 +132,15 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
         statics: list[Transforms] = []
         mounts: dict[str, Transform] = {}
         seen: dict[str, int] = {}
+        imu: list[Imu] = []  # the last half second of IMU samples
         done = 0
         try:
             for rec in log.read(wanted):
+                if isinstance(rec, Imu):
+                    imu.append(rec)
+                    while imu and imu[0].stamp_ns < rec.stamp_ns - 500_000_000:
+                        imu.pop(0)
+                    continue
                 if isinstance(rec, Transforms):
                     statics.append(rec)
                     mounts.clear()
@@ -141,8 +157,12 @@ def _log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
                     own = ov.camera(depth.shape, rec.frame_id) or infos.get(det.info.get(rec.topic) or "")
                     cam = camera_for(depth.shape, own, cfg.depth, rec.frame_id)
                     if rec.frame_id not in mounts:
-                        mounts[rec.frame_id] = camera_mount(statics, rec.frame_id, cfg.depth)[0]
-                    yield Item(k, rec.stamp_ns, depth, cam, mounts[rec.frame_id], rec.topic, rec.frame_id or "camera")
+                        mounts[rec.frame_id] = camera_mount(statics, rec.frame_id, cfg.depth)
+                    mount, src = mounts[rec.frame_id]
+                    up_imu = _imu_gravity(imu, statics, rec.frame_id, warnings)
+                    grav = gravity_source(cfg.depth, src, gravity_file is not None, up_imu is not None)
+                    up = {"file": gravity_file[0] if gravity_file else None, "imu": up_imu}.get(grav)
+                    yield Item(k, rec.stamp_ns, depth, cam, mount, rec.topic, rec.frame_id or "camera", grav, up)
                     done += 1
         finally:
             skipped = getattr(log, "not_depth", None)
@@ -183,7 +203,7 @@ def _dataset_frames(folders: list[Path], cfg, ov: Override, every: int,
                     _note(warnings, f"--camera {ov.camera_file} replaces the intrinsics of {s.dataset}")
                 cam = camera_for(depth.shape, own or s.camera, cfg.depth)
                 yield Item(k, int(round(s.stamp * 1e9)), depth, cam, config_mount(cfg.depth, "camera"),
-                           f"{s.dataset}/{s.name}", "camera")
+                           f"{s.dataset}/{s.name}", "camera", gravity_source(cfg.depth, "config", False))
 
     return total, gen(), warnings
 
@@ -239,6 +259,40 @@ def _write_mcap(writer, planes: Planes, item: Item, max_points: int, seed: int) 
         centroids /= np.maximum(planes.counts, 1)[:, None]
     msg = convert.pose_array_msg(writer.ts, t, item.frame_id, centroids, normal_quaternions(planes.normals))
     writer.write_msg(NORMALS_TOPIC, "geometry_msgs/msg/PoseArray", msg, t)
+
+
+GRAVITY_WORDS = {"tf_static": "the mount in /tf_static", "config": "the [depth] mount_xyz / mount_rpy_deg",
+                 "file": "the folder's gravity file", "imu": "the log's IMU (on the depth camera's rigid body)",
+                 "frames": "the frames (the dominant level plane family, tracked over the sequence)"}
+
+
+def gravity_source(dcfg, mount_source: str, has_file: bool, has_imu: bool = False) -> str:
+    """Where a frame's classes take gravity from ([depth] gravity), in this order: the mount in /tf_static or
+    set in the config, the log's IMU on the camera's rigid body, a gravity file, the frames."""
+    if dcfg.gravity == "frames":
+        return "frames"
+    if dcfg.gravity == "mount" or mount_source == "tf_static" or not mount_is_default(dcfg):
+        return mount_source
+    if has_imu:
+        return "imu"
+    return "file" if has_file else "frames"
+
+
+def _imu_gravity(imu: list, statics: list, frame_id: str, warnings: list[str]) -> np.ndarray | None:
+    """Up in the depth frame from the recent IMU samples, when /tf_static ties the IMU's frame to the depth
+    camera's (the same rigid body); None (with a warning, once) when it does not."""
+    if not imu:
+        return None
+    last = imu[-1]
+    same = not last.frame_id or last.frame_id.lstrip("/") == frame_id.lstrip("/")
+    tf = None if same else lookup_static(statics, frame_id, last.frame_id)
+    if tf is None and not same:
+        _note(warnings, f"the IMU's frame {last.frame_id} is not tied to the depth frame {frame_id} in /tf_static: "
+                        f"it is not used for gravity")
+        return None
+    R = np.eye(3) if tf is None else tf.matrix()[:3, :3]
+    has_q = last.orientation_cov[0] != -1 and np.linalg.norm(last.orientation) > 0.5
+    return imu_up(np.array([s.linear_acceleration for s in imu]), last.orientation if has_q else None, R)
 
 
 def no_eligible_cause(depth_m: np.ndarray, min_depth: float, max_depth: float) -> str:
@@ -368,6 +422,66 @@ def run_planes(path: Path, out: Path, cfg, *, camera_file: Path | None = None, d
     return summary
 
 
+def _classes(planes: Planes, item: Item, cfg, tracker: GravityTracker, calibrator: MountCalibrator) -> Planes:
+    """The frame's plane classes from its gravity source, then its dropped classes removed; a mount's frames also
+    feed the mount calibration (their floor planes)."""
+    if item.gravity == "frames":
+        up = tracker.update(planes)
+        return reclassify(planes, up, tracker.height, cfg.fspf)
+    if item.gravity in ("file", "imu"):
+        h = floor_height(planes.normals, planes.offsets, planes.counts, item.up)
+        tracker.height = h if np.isfinite(h) else tracker.height
+        return reclassify(planes, item.up, tracker.height, cfg.fspf)
+    calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
+    return drop_classes(planes, cfg.fspf)
+
+
+def _mount_estimate(calibrator: MountCalibrator, first: tuple[Transform, str] | None, cfg,
+                    warnings: list[str]) -> dict | None:
+    """The mount seen from the floor planes beside the given one (a warning when they differ by > 1° or 2 cm),
+    with the [depth] lines and a /tf_static command that set it."""
+    if first is None:
+        return None
+    mount, src = first
+    est = calibrator.estimate(gravity_up(mount), float(mount.translation[2]), src)
+    if est is None:
+        return None
+    # x, y and yaw (not seen from the floor) stay the given mount's: camera_link ← base_link of its rotation
+    xyz = [float(v) for v in mount.translation]
+    link = mount.matrix()[:3, :3] @ OPTICAL_ROTATION.T
+    rpy = [float(v) for v in np.degrees(Rotation.from_matrix(link).as_euler("xyz"))]
+    if est.differs:
+        _note(warnings, f"the floor planes of {est.frames} frames put the depth camera at pitch {est.pitch_deg:.2f}°, "
+                        f"roll {est.roll_deg:.2f}°, {est.height_m:.3f} m above the floor; the mount from "
+                        f"{GRAVITY_WORDS[src]} says pitch {est.given_pitch_deg:.2f}°, roll {est.given_roll_deg:.2f}°, "
+                        f"{est.given_height_m:.3f} m (more than 1° or 2 cm apart): see mount.toml")
+    return est.as_dict() | {"given_xyz": xyz, "given_yaw_deg": rpy[2], "config": est.config_lines(xyz, rpy),
+                            "tf_static": est.tf_static_command(xyz, rpy[2])}
+
+
+def estimate_mount(path: Path, cfg, frames: int = 30) -> tuple[dict | None, int]:
+    """The depth camera's mount from the floor planes of ≤ `frames` frames spread over the log (nothing written):
+    (the estimate as in summary.json's mount_estimate, or None without a floor; the frames read)."""
+    given = replace(cfg.depth, mount="given")
+    probe = replace(cfg, depth=given)
+    total, items, warnings = _log_frames(path, probe, Override(), 1, None)
+    every = max(1, total // frames)
+    items.close()
+    total, items, warnings = _log_frames(path, probe, Override(), every, frames)
+    keep_all = replace(cfg.fspf, drop_classes=[])
+    calibrator, first, n = MountCalibrator(), None, 0
+    try:
+        for item in items:
+            planes = filter_planes(item.depth, item.camera, keep_all, given, item.mount,
+                                   seed=frame_seed(cfg.fspf, item.index))
+            calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
+            first = first or (item.mount, "tf_static" if item.gravity == "tf_static" else "config")
+            n += 1
+    finally:
+        items.close()
+    return _mount_estimate(calibrator, first, probe, warnings), n
+
+
 def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item], warnings: list[str], *,
                    save_depth: bool, figures: int, mcap: bool, npz: bool, mcap_points: int, progress: bool) -> dict:
     """Filter the frames and write every output into `out` (the run's hidden folder); returns the summary."""
@@ -382,6 +496,9 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
 
         writer = McapWriter(out / "planes.mcap")
     rows: list[dict] = []
+    keep_all = replace(cfg.fspf, drop_classes=[])  # classes are settled after the filter (gravity), then dropped
+    tracker, calibrator, gravity_used = GravityTracker(), MountCalibrator(), {}
+    first_mount: tuple[Transform, str] | None = None
     empty = 0  # frames without an eligible pixel
     mounts_written: set[str] = set()
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -394,8 +511,11 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
             for n, item in enumerate(frames):
                 if n == 0:
                     warmup(cfg.fspf.method, item.depth.shape)  # elapsed_ms: no compiling, no first touch of buffers
-                planes = filter_planes(item.depth, item.camera, cfg.fspf, cfg.depth, item.mount,
+                    first_mount = (item.mount, item.gravity)
+                planes = filter_planes(item.depth, item.camera, keep_all, cfg.depth, item.mount,
                                        seed=frame_seed(cfg.fspf, item.index))
+                planes = _classes(planes, item, cfg, tracker, calibrator)
+                gravity_used[item.gravity] = gravity_used.get(item.gravity, 0) + 1
                 name = f"{n:06d}"
                 if planes.stats.eligible == 0:
                     empty += 1
@@ -441,10 +561,16 @@ def _filter_frames(path: Path, out: Path, cfg, total: int, frames: Iterator[Item
         for r in rows + [summary_row]:
             w.writerow({k: (f"{v:.4f}" if isinstance(v, float) else v) for k, v in r.items()})
     ms = np.array([r["elapsed_ms"] for r in rows])
+    mount_est = _mount_estimate(calibrator, first_mount, cfg, warnings)
     summary = {"input": str(path), "method": cfg.fspf.method, "backend": cfg.fspf.backend, "frames": len(rows),
                "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
-               **{k: summary_row[k] for k in STATS_COLUMNS[3:]}, "warnings": list(warnings)}
+               **{k: summary_row[k] for k in STATS_COLUMNS[3:]},
+               "gravity": {k: {"frames": v, "from": GRAVITY_WORDS[k]} for k, v in gravity_used.items()},
+               "mount_estimate": mount_est, "warnings": list(warnings)}
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    if mount_est is not None:
+        (out / "mount.toml").write_text(f"# the depth camera's mount as the floor planes of {path.name} show it\n"
+                                        f"# on /tf_static: {mount_est['tf_static']}\n{mount_est['config']}")
     return summary
 
 
@@ -479,6 +605,13 @@ def register(app: typer.Typer) -> None:
         cfg = O.make_config(config, sets, depth_topic, info_topic)
         s = run_planes(source, out, cfg, camera_file=camera, depth_scale=depth_scale, save_depth=save_depth,
                        figures=figures, every=every, limit=max_frames, mcap=not no_mcap, npz=not no_npz, pattern=glob)
+        for g in s["gravity"].values():
+            print(f"gravity: {g['from']} ({g['frames']} frames)")
+        m = s["mount_estimate"]
+        if m is not None:
+            print(f"mount from the floor ({m['frames']} frames): pitch {m['pitch_deg']:.2f}°, roll {m['roll_deg']:.2f}°, "
+                  f"height {m['height_m']:.3f} m; given: pitch {m['given_pitch_deg']:.2f}°, roll {m['given_roll_deg']:.2f}°, "
+                  f"height {m['given_height_m']:.3f} m ({out}/mount.toml)")
         print(f"{s['frames']} frames, {s['method']} ({s['backend']}): median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
               f"per frame; of the pixels: ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
               f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, "
@@ -486,4 +619,4 @@ def register(app: typer.Typer) -> None:
         for w in s["warnings"]:
             print(f"warning: {w}")
         print(f"wrote {out}/stats.csv, config.toml, summary.json" + ("" if no_npz else ", planes/")
-              + ("" if no_mcap else ", planes.mcap") + (", depth/" if save_depth else "") + (", figures/" if figures else ""))
+              + ("" if no_mcap else ", planes.mcap") + (", depth/" if save_depth else "") + (", figures/" if figures else "") + (", mount.toml" if m is not None else ""))

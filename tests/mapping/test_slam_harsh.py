@@ -1,0 +1,47 @@
+"""Laser SLAM with harsh but ordinary wheel odometry (2 % and 2.8 % wheel radius errors, 0.3°/m heading bias) on
+the simulated office and on the long-corridor world (a ring of 42 m bare corridors round a closed block, a 180°
+SICK-like laser of 181 beams), scored against the log's ground truth. The robot drives at 0.8–1 m/s so that each
+log is two minutes; no IMU (the CARMEN-era robots had none)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from kosmap.mapping.config import Config
+from kosmap.mapping.slam import evaluate, run_slam
+
+WORLDS = Path(__file__).resolve().parents[2] / "tools" / "simulate" / "worlds"
+HARSH = dict(odom_scale_error_left=0.02, odom_scale_error_right=0.028, odom_heading_bias_deg_per_m=0.3)
+QUICK = dict(laser_rate=10.0, depth_rate=0.2, depth_width=32, depth_height=24, compression="lz4", imu=False,
+             speed_min=0.8, speed_max=1.0)
+
+
+def _run(tmp_path, world: str, seed: int, **laser):
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+
+    log = tmp_path / "harsh.mcap"
+    simulate(load_world(world), SimConfig(seed=seed, **HARSH, **QUICK, **laser), log)
+    r = run_slam(log, Config())
+    return r, evaluate(r)
+
+
+@pytest.mark.slow
+def test_long_corridors_with_a_sick_and_harsh_odometry(tmp_path):
+    r, m = _run(tmp_path, str(WORLDS / "corridors.yaml"), 2, laser_fov_deg=180.0, laser_beams=181)
+    # measured 0.089 m RMSE, 0.16 m max, front end alone 0.105 m; the wheels alone several metres. Without the
+    # scan-geometry degeneracy rule the front end shrinks each 42 m corridor to a few metres (tests/frontend/
+    # test_degenerate.py); without the running scale calibration the 2.4 % scale error stays in the corridors
+    assert m["ate"]["rmse"] <= 0.10, m["ate"]
+    assert m["ate"]["max"] <= 0.3, m["ate"]
+    assert m["ate_odometry"]["rmse"] > 2.0, m["ate_odometry"]
+    assert len(r.loops) >= 5
+
+
+@pytest.mark.slow
+def test_office_with_harsh_odometry(tmp_path):
+    r, m = _run(tmp_path, "office", 2)
+    # measured 0.023 m RMSE, 0.086 m max, 27 loops
+    assert m["ate"]["rmse"] <= 0.05, m["ate"]
+    assert m["ate_odometry"]["rmse"] > 1.0, m["ate_odometry"]
