@@ -72,3 +72,29 @@ def test_drift_model_grows_with_travel_and_learns_from_loops():
     d.reset()
     assert d.travel == 0.0 and d.window() == 1.0
     assert abs(d.rate - (0.8 * 0.01 + 0.2 * 1.6 / 79.5)) < 1e-12  # the measured 2 %/m pulls the rate up
+
+
+def test_a_degenerate_wide_loop_constrains_only_across_the_corridor():
+    # the loop found above along a corridor: its covariance (node b's frame, b looks along −x) leaves the corridor's
+    # direction loose and holds the lateral position and the heading at the loop σ
+    lc, found, _ = _run(_cfg(), 1.8)
+    cov = found[0].cov
+    assert cov is not None
+    w, v = np.linalg.eigh(cov[:2, :2])
+    assert abs(abs(v[0, 1]) - 1.0) < 0.05 and abs(math.sqrt(w[1]) - 10.0) < 1e-6  # loose along x (the corridor)
+    assert abs(math.sqrt(w[0]) - lc.cfg.loop_sigma_xy) < 1e-9 and abs(cov[2, 2] - math.radians(lc.cfg.loop_sigma_yaw_deg) ** 2) < 1e-12
+    # in the graph, under the Cauchy kernel: a loop 0.3 m off along the corridor barely moves the nodes, one 0.3 m
+    # off across it pulls them most of the way
+    from kosmap.backend.graph import PoseGraph
+
+    moved = []
+    for off in ([0.3, 0.0], [0.0, 0.3]):
+        g = PoseGraph(_cfg())
+        g.add_node(np.zeros(3))
+        g.add_node(np.array([5.0, 0.0, 0.0]))
+        g.add_odometry(0, 1, np.array([5.0, 0.0, 0.0]))
+        c = np.diag([10.0 ** 2, 0.05 ** 2, math.radians(1.0) ** 2])  # loose along x of node 1's frame
+        g.add_loop(0, 1, np.array([5.0 + off[0], off[1], 0.0]), cov=c)
+        g.optimize()
+        moved.append(np.hypot(*(g.est[1, :2] - [5.0, 0.0])))
+    assert moved[0] < 0.01 and moved[1] > 0.25, moved  # measured 0.001 m and 0.298 m
