@@ -389,7 +389,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             pool.close(cancel=True)
         shutil.rmtree(spill_dir, ignore_errors=True)
     try:
-        files = {k: final_out / p.name for k, p in files.items()}
+        files = {k: final_out / p.name if isinstance(p, Path) else p for k, p in files.items()}  # where they now are
         files["manifest"] = commit(stage, partial=bool(p1["partial"]))
     except BaseException:
         discard(stage)
