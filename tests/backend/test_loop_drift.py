@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.keyframes import Keyframe
@@ -44,12 +45,18 @@ def _run(cfg: GraphConfig, drift: float, seed: int = 0):
     return lc, found, true
 
 
-def test_a_drifted_estimate_is_searched_where_the_drift_took_it():
+@pytest.fixture(scope="module")
+def drifted():
+    """The run with the default (growing) window and a 1.8 m drift."""
+    return _run(_cfg(), 1.8)
+
+
+def test_a_drifted_estimate_is_searched_where_the_drift_took_it(drifted):
     # a fixed 1 m window (the window may not grow): the true place lies 1.8 m away, outside it: no loop
     lc, found, _ = _run(_cfg(loop_max_linear_window=1.0), 1.8)
     assert found == [] and lc.stats.rejected_score >= 1
     # the window grows with the 75 m travelled at 1 %/m (3σ = 2.26 m): the loop is found, at the true pose
-    lc, found, true = _run(_cfg(), 1.8)
+    lc, found, true = drifted
     assert found and lc.stats.widened >= 1 and 1.8 < lc.stats.widest_window < 3.0
     for f in found:
         a = np.array([2.0 + 0.2 * f.a, 0.1, 0.0])  # node a lies on the first pass, at its exact pose
@@ -74,10 +81,10 @@ def test_drift_model_grows_with_travel_and_learns_from_loops():
     assert abs(d.rate - (0.8 * 0.01 + 0.2 * 1.6 / 79.5)) < 1e-12  # the measured 2 %/m pulls the rate up
 
 
-def test_a_degenerate_wide_loop_constrains_only_across_the_corridor():
+def test_a_degenerate_wide_loop_constrains_only_across_the_corridor(drifted):
     # the loop found above along a corridor: its covariance (node b's frame, b looks along −x) leaves the corridor's
     # direction loose and holds the lateral position and the heading at the loop σ
-    lc, found, _ = _run(_cfg(), 1.8)
+    lc, found, _ = drifted
     cov = found[0].cov
     assert cov is not None
     w, v = np.linalg.eigh(cov[:2, :2])
