@@ -30,7 +30,8 @@ rest unexamined; windows land at random, so which 10 % that is varies by seed (t
 81–100 % of it on its plane at 0.90, 87–100 % at 0.99). Growing attaches those pixels at ~25 ns each, less
 than a window's RANSAC costs, so the default keeps 0.90 and grows (100 % of the table at every seed); a
 higher analysed_fraction only buys planes in regions no plane touches (small objects), at the windows' cost.
-Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py.
+Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py. The
+numpy path (`backend="numpy"`, for the benchmark) has neither the coherence test nor growing.
 Simulated acceptance numbers: tests/frontend/test_fspf_sim.py; speed: tools/bench_planes.py.
 
 FSPF (Biswas & Veloso 2012, thesis Alg. 1): random d0, d1, d2 within η; a plane through their points; l
