@@ -84,9 +84,12 @@ One configuration serves every log; these quantities are measured on the log as 
   between 1 m and 3 m (the candidates' radius grows with it); the rate starts at 1 %/m and follows the corrections
   accepted loops measure (correction ÷ travel since the previous loop, over ≥ 10 m). A robot that went 100 m without
   a loop is searched ±3 m, one that closes loops every few metres ±1 m, as the tuned constant was.
-- **Loop verification**: a wide scan's match that is degenerate by the same information ratio must beat its best
-  distinct rival (0.3 m or more away) by 1 %, as a narrow scan's always must (repeated doors, a corridor slid
-  along); loop factors are under a Cauchy kernel (`[graph] robust_kernel`) so one wrong loop cannot bend the map.
+- **Loop verification**: a wide scan whose own surfaces are degenerate by the same ratio (a corridor) must beat its
+  best distinct rival (0.3 m or more away) by 1 %, as a narrow scan's always must (repeated doors), and its loop
+  factor is loose (σ 10 m) along the direction the scan does not fix: along a corridor the best score is where the
+  query overlaps the submap's walls most, not where the robot is (a corridor ring driven both ways with a 180° laser:
+  76 of 97 such loops lay 1–3 m along the corridor; ATE 0.72 → 0.21 m). Loop factors are under a Cauchy kernel
+  (`[graph] robust_kernel`) so one wrong loop cannot bend the map.
 
 Still constants (chosen on the tuning logs, and held in the leave-one-out below): the field resolutions (5/10 cm),
 the keyframe spacing (0.15 m, 7.5°), the node spacing (0.2 m, 10°), the loop acceptance score (0.6) and inlier share
