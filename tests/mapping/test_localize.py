@@ -190,6 +190,7 @@ def _bad(capsys, *args) -> str:
     return err
 
 
+@pytest.mark.slow  # the simulated room it refuses maps and poses for takes ~8 s to make
 def test_refusals_are_one_line(room, tmp_path, capsys):
     log, plan = room
     no_res = tmp_path / "nores.yaml"
