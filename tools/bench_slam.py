@@ -58,7 +58,7 @@ METRICS = (("abs_trans", "abs trans (m)", 4), ("sq_trans", "sq trans (m²)", 4),
            ("sq_rot_deg2", "sq rot (°²)", 3))
 
 
-# How the settings that used to be constants fit to the three logs now follow from the scan, the odometry and the run.
+# How the settings follow from the scan, the odometry and the run.
 DERIVATIONS = """## How the settings follow from the sensor and the log
 
 One configuration serves every log; these quantities are measured on the log as it runs rather than set:
