@@ -248,11 +248,20 @@ class PoseGraph:
                else gtsam.noiseModel.mEstimator.Huber.Create(k))
         return gtsam.noiseModel.Robust.Create(est, base)
 
+    def _robust(self, base, robust: bool):
+        """`base` under the loop kernel (Cauchy or Huber) when `robust`; GNC and none leave it as it is."""
+        if not robust or self.cfg.robust_kernel in ("none", "gnc"):
+            return base
+        k = self.cfg.robust_scale
+        est = (gtsam.noiseModel.mEstimator.Cauchy.Create(k) if self.cfg.robust_kernel == "cauchy"
+               else gtsam.noiseModel.mEstimator.Huber.Create(k))
+        return gtsam.noiseModel.Robust.Create(est, base)
+
     def _add(self, kind: str, a: int, b: int, meas: np.ndarray, sigmas: np.ndarray, robust: bool, score: float = float("nan"),
              cov: np.ndarray | None = None, dt: float = float("nan"), online: np.ndarray | None = None):
         if cov is not None:
             cov = _finite_covariance(cov)
-        model = self._noise(sigmas, robust) if cov is None else gtsam.noiseModel.Gaussian.Covariance(cov)
+        model = self._noise(sigmas, robust) if cov is None else self._robust(gtsam.noiseModel.Gaussian.Covariance(cov), robust)
         if cov is not None:
             sigmas = np.sqrt(np.diag(cov))
         if kind in CHAIN_KINDS and b == a + 1 and b >= self._chain_from:
@@ -314,11 +323,13 @@ class PoseGraph:
         self._add("heading", a, a, np.array([x, y, yaw]), np.array([1e3, 1e3, math.radians(self.cfg.manhattan_sigma_deg)]),
                   robust=True)
 
-    def add_loop(self, a: int, b: int, rel: np.ndarray, score: float = float("nan"), sigmas: np.ndarray | None = None) -> None:
-        """A loop constraint: pose of b in a's frame, under the robust kernel."""
+    def add_loop(self, a: int, b: int, rel: np.ndarray, score: float = float("nan"), sigmas: np.ndarray | None = None,
+                 cov: np.ndarray | None = None) -> None:
+        """A loop constraint: pose of b in a's frame, under the robust kernel; `cov` (in b's frame) instead of the
+        fixed σ for a match that fixes one direction less (backend/loops.py: a corridor)."""
         if sigmas is None:
             sigmas = np.array([self.cfg.loop_sigma_xy, self.cfg.loop_sigma_xy, math.radians(self.cfg.loop_sigma_yaw_deg)])
-        self._add("loop", a, b, rel, sigmas, robust=True, score=score)
+        self._add("loop", a, b, rel, sigmas, robust=True, score=score, cov=cov)
 
     # ---- solving ----------------------------------------------------------------------------------------------------
     def update(self, full: bool = False) -> None:

@@ -86,6 +86,30 @@ def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, every,
         out[p] = acc
 
 
+@njit(cache=True)
+def _through_fraction(dist, ox, oy, res, pose, pts, tol):
+    c = math.cos(pose[2])
+    s = math.sin(pose[2])
+    n = pts.shape[0]
+    bad = 0
+    for k in range(n):
+        qx = pose[0] + c * pts[k, 0] - s * pts[k, 1]
+        qy = pose[1] + s * pts[k, 0] + c * pts[k, 1]
+        if _through_wall(dist, ox, oy, res, pose[0], pose[1], qx, qy, math.hypot(pts[k, 0], pts[k, 1]) - tol):
+            bad += 1
+    return bad / max(n, 1)
+
+
+def through_fraction(field, pose: np.ndarray, pts: np.ndarray, tol: float) -> float:
+    """Share of the end points whose ray passes more than `tol` metres through a wall from `pose`: at the right pose
+    next to none (a glass pane, an opening the map lacks), at a wrong one many."""
+    if len(pts) == 0:
+        return 0.0
+    return float(_through_fraction(field.distance, field.origin[0], field.origin[1], field.resolution,
+                                   np.asarray(pose, dtype=np.float64), np.ascontiguousarray(pts, dtype=np.float64),
+                                   float(tol)))
+
+
 def log_likelihoods(field, parts: np.ndarray, pts: np.ndarray, through: float = -np.inf, tol: float = 0.0,
                     search: bool = False, every: int = 1) -> np.ndarray:
     """Σ_k log p(z_k | x_p, m) of each particle (−inf where the particle is off the free cells). With `through`

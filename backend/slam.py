@@ -264,7 +264,7 @@ class Slam:
                 # candidates are chosen, and searched, around the current estimate: the last solved pose
                 # composed with the front end's motion since (ISAM2 runs every `optimize_every` nodes)
                 for lc in self.loops.search(kf.id, g):
-                    g.add_loop(lc.a, lc.b, lc.rel, lc.score)
+                    g.add_loop(lc.a, lc.b, lc.rel, lc.score, cov=lc.cov)
                     self.found.append(lc)
                     self.since_loop += 1
         t2 = time.perf_counter()

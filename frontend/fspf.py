@@ -30,7 +30,8 @@ rest unexamined; windows land at random, so which 10 % that is varies by seed (t
 81–100 % of it on its plane at 0.90, 87–100 % at 0.99). Growing attaches those pixels at ~25 ns each, less
 than a window's RANSAC costs, so the default keeps 0.90 and grows (100 % of the table at every seed); a
 higher analysed_fraction only buys planes in regions no plane touches (small objects), at the windows' cost.
-Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py.
+Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py. The
+numpy path (`backend="numpy"`, for the benchmark) has neither the coherence test nor growing.
 Simulated acceptance numbers: tests/frontend/test_fspf_sim.py; speed: tools/bench_planes.py.
 
 FSPF (Biswas & Veloso 2012, thesis Alg. 1): random d0, d1, d2 within η; a plane through their points; l
@@ -42,6 +43,7 @@ from __future__ import annotations
 
 import threading
 import time
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
@@ -446,6 +448,15 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, 
     """
     m = 0
     ss = 0.0
+    for s in range(ns):
+        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
+        if abs(r) < eps:
+            ss += r * r
+            m += 1
+    if m < 24 or ss < m * (0.2 * eps) ** 2:  # residual RMS below ε/5: one surface (the bend test's gate)
+        return False, nx, ny, nz, d
+    m = 0
+    ss = 0.0
     nn = 0
     for s in range(ns):
         r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
@@ -466,11 +477,14 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, 
                 if v >= 0:
                     noise[nn] = v
                     nn += 1
-    if m < 24 or ss < m * (0.2 * eps) ** 2 or nn < 12:
+    if nn < 12:
         return False, nx, ny, nz, d
     # robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step edges among them do not count, and a sensor
     # that quantises depth (disparity steps: many zero differences) still shows its step
-    sigma = np.percentile(noise[:nn], 75.0) / (1.15 * np.sqrt(6.0))
+    q = np.sort(noise[:nn])  # the upper quartile as np.percentile has it (linear), without its compile time
+    pos = 0.75 * (nn - 1)
+    lo = int(pos)
+    sigma = (q[lo] + (pos - lo) * (q[min(lo + 1, nn - 1)] - q[lo])) / (1.15 * np.sqrt(6.0))
     if ss < m * (2.0 * sigma) ** 2:
         return False, nx, ny, nz, d
     ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, m, max_iter, state, ux, uy, uz, uidx)
@@ -652,239 +666,285 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack, pl_n, pl_d, pl_cnt, pl_mom
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
 
+# The FSPF+ kernel: its parameters in one record (Params), its buffers in two tuples, its counters in `stats`
+# (S_* indices), and its main loop as the thesis's Algorithm 3, each step and each of our extensions a helper.
+
+Params = namedtuple("Params", "fx fy cx cy min_d max_d n_min omega delta eps beta frac subset max_iter per_window "
+                              "extra_min bend_max min_width tail_eps coherence grow sl_min sl_max cam_h ground_max_h")
+S_PIXELS, S_INELIGIBLE, S_INLIERS, S_DROPPED, S_OUTLIERS, S_REMAINING, S_WINDOWS, S_VISITED, S_BENT, S_THIN, \
+    S_SPLIT, S_GROWN = range(12)
+
+
 @njit(cache=True, error_model="numpy")
-def _fspf_plus_nb(depth, fx, fy, cx, cy, min_d, max_d, n_min, omega, delta, eps, beta, frac, subset, max_iter,
-                  per_window, extra_min, bend_max, min_width, tail_eps, coherence, grow, up, fwd, left, sl_min, sl_max, cam_h,
-                  ground_max_h, drop, state, st, cand, wr, wc, wx, wy, wz, lbl,
-                  out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats):
-    H, W = depth.shape
-    npx = H * W
-    flat = depth.ravel()
-    # st: 0 ineligible, 1 eligible, 2 consumed; st, cand, wr … wz are reused buffers of ≥ npx entries
+def _depth_constraints_nb(flat, min_d, max_d, st, cand):
+    """depthConstraints (thesis Alg. 4): st = 1 for eligible pixels (NaN compares false), 0 else; their indices
+    into cand. Branch-free. Returns their count."""
     m = 0
-    for i in range(npx):  # depthConstraints (thesis Alg. 4); NaN compares false. Branch-free.
+    for i in range(len(flat)):
         z = flat[i]
         ok = (z > min_d) & (z <= max_d)
         st[i] = ok
         cand[m] = i
         m += ok
-    n_elig = m
-    remaining = n_elig
-    stop = (1.0 - frac) * n_elig
+    return m
+
+
+@njit(cache=True, error_model="numpy")
+def _draw_p0_nb(state, cand, m, st):
+    """p0: a random eligible, unconsumed pixel; consumed candidates are removed lazily. Returns (p0 or −1, m)."""
+    i = _randint(state, m)
+    i0 = cand[i]
+    if st[i0] != 1:
+        m -= 1
+        cand[i] = cand[m]
+        return -1, m
+    return i0, m
+
+
+@njit(cache=True, error_model="numpy")
+def _draw_p1_p2_nb(state, flat, st, i0, W, H, omega):
+    """p1, p2: eligible unconsumed pixels within Ω of p0 (40 tries). Returns the mean depth z̄ of p0, p1, p2, or
+    −1 when p0 is isolated."""
+    r0 = i0 // W
+    c0 = i0 - r0 * W
+    found = 0
+    j1 = -1
+    zs = np.float64(flat[i0])
+    for _ in range(40):
+        r = r0 + _randint(state, 2 * omega + 1) - omega
+        c = c0 + _randint(state, 2 * omega + 1) - omega
+        if r < 0 or r >= H or c < 0 or c >= W:
+            continue
+        j = r * W + c
+        if j == i0 or j == j1 or st[j] != 1:
+            continue
+        zs += flat[j]
+        j1 = j
+        found += 1
+        if found == 2:
+            return zs / 3.0
+    return -1.0
+
+
+@njit(cache=True, error_model="numpy")
+def _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats):
+    """The search window: the world size Δ at the mean depth, W = fx·Δ/z̄, H = fy·Δ/z̄ around p0, clipped at the
+    border; its eligible pixels become 3D points (win: rows, cols, x, y, z) and are consumed. Returns their count."""
+    wr, wc, wx, wy, wz = win
+    r0 = i0 // W
+    c0 = i0 - r0 * W
+    hw = int(0.5 * prm.fx * prm.delta / zbar + 0.5)
+    hh = int(0.5 * prm.fy * prm.delta / zbar + 0.5)
+    r_lo, r_hi = max(0, r0 - hh), min(H - 1, r0 + hh)
+    c_lo, c_hi = max(0, c0 - hw), min(W - 1, c0 + hw)
+    stats[S_WINDOWS] += 1
+    stats[S_VISITED] += (r_hi - r_lo + 1) * (c_hi - c_lo + 1)
+    k = 0
+    for r in range(r_lo, r_hi + 1):
+        base = r * W
+        yr = ty[r]
+        for c in range(c_lo, c_hi + 1):
+            j = base + c
+            if st[j] == 1:
+                st[j] = 2
+                z = flat[j]
+                wr[k] = r
+                wc[k] = c
+                wx[k] = z * tx[c]
+                wy[k] = z * yr
+                wz[k] = z
+                k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def _scratch_nb(subset):
+    """The small per-frame buffers: the RANSAC subset (x, y, z, index), a ≤ 256-point sample of a plane with its
+    pixels, the coherence test's copies and noise, and a plane's moments."""
+    f = np.float32
+    return (np.empty(subset, f), np.empty(subset, f), np.empty(subset, f), np.empty(subset, np.int64),
+            np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, np.int64),
+            np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f),
+            np.empty(256, np.int64), np.empty(512), np.empty(9))
+
+
+@njit(cache=True, error_model="numpy")
+def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
+                   stats):
+    """A plane's inliers out of the window (_partition_nb); with the coherence test on, a plane that is not one
+    surface shrinks to its strongest sub-plane and takes again. Returns (points kept in the window, inliers, n_out,
+    the plane's class, whether that class is dropped)."""
+    wr, wc, wx, wy, wz = win
+    out_pix, out_pts, out_plane = out[0], out[1], out[2]
+    bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise, mom = sc[4:]
+    tail = max(prm.tail_eps, 1.0) * prm.eps
+    start = n_out
+    dropped = drop[cls]
+    keep, n_in = 0, 0
+    for attempt in range(2):
+        keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
+                                                  st, lbl, n_pl, out_pix, out_pts, out_plane, n_out, mom)
+        stats[S_OUTLIERS] += n_tail
+        if attempt == 1 or not prm.coherence or dropped or n_in <= prm.n_min:
+            break
+        nb = _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W)
+        split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, nx, ny, nz, d, prm.eps,
+                                                     prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
+                                                     noise, np.cos(np.radians(2.0)))
+        if not split:
+            break
+        stats[S_SPLIT] += 1
+        na = _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W)
+        n_out = start
+        nx, ny, nz, d = sx_, sy_, sz_, sd_
+        cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
+                           prm.ground_max_h)
+        dropped = drop[cls]
+    return keep, n_in, n_out, cls, dropped
+
+
+@njit(cache=True, error_model="numpy")
+def _accept_plane_nb(prm, mom, n_in, start, n_out, out_pts, bx, by, bz, stats):
+    """The plane refitted from all its inliers' moments, rectified; rejected (ok False) when its inliers are a
+    strip no wider than the inlier band (min_width: its plane is not determined) or bend like a strip of a curved
+    surface (bend_max: a person, a pillar; tested on ≤ 256 of them, evenly strided, when their residual spread is
+    not far below ε). Returns (ok, nx, ny, nz, d)."""
+    inv = 1.0 / n_in
+    mx, my, mz = mom[0] * inv, mom[1] * inv, mom[2] * inv
+    C = np.empty((3, 3))
+    C[0, 0] = mom[3] * inv - mx * mx
+    C[0, 1] = C[1, 0] = mom[4] * inv - mx * my
+    C[0, 2] = C[2, 0] = mom[5] * inv - mx * mz
+    C[1, 1] = mom[6] * inv - my * my
+    C[1, 2] = C[2, 1] = mom[7] * inv - my * mz
+    C[2, 2] = mom[8] * inv - mz * mz
+    ev, v = np.linalg.eigh(C)
+    if ev[1] < (prm.min_width * prm.eps) ** 2:
+        stats[S_THIN] += 1
+        return False, 0.0, 0.0, 0.0, 0.0
+    fx_, fy_, fz_ = v[0, 0], v[1, 0], v[2, 0]
+    fd = -(fx_ * mx + fy_ * my + fz_ * mz)
+    if fd < 0:
+        fx_, fy_, fz_, fd = -fx_, -fy_, -fz_, -fd
+    if prm.bend_max > 0 and ev[0] > (0.2 * prm.eps) ** 2:  # residual RMS below ε/5: flat enough, no bend test
+        step = max(1, n_in // 256)
+        nb = 0
+        for a in range(start, n_out, step):
+            if nb == 256:
+                break
+            bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+            nb += 1
+        if _curved_nb(bx, by, bz, nb, fx_, fy_, fz_, fd, prm.eps, 0.5, prm.bend_max):
+            stats[S_BENT] += 1
+            return False, 0.0, 0.0, 0.0, 0.0
+    return True, fx_, fy_, fz_, fd
+
+
+@njit(cache=True, error_model="numpy")
+def _record_plane_nb(out, n_pl, nx, ny, nz, d, cls, n_in, mom):
+    pl_n, pl_d, pl_cls, pl_cnt, pl_mom = out[3], out[4], out[5], out[6], out[7]
+    pl_n[n_pl, 0], pl_n[n_pl, 1], pl_n[n_pl, 2] = nx, ny, nz
+    pl_d[n_pl] = d
+    pl_cls[n_pl] = cls
+    pl_cnt[n_pl] = n_in
+    for a in range(9):
+        pl_mom[n_pl, a] = mom[a]
+
+
+@njit(cache=True, error_model="numpy")
+def _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl, stats):
+    """The planes of one window of k points (thesis Alg. 3's inner part): RANSAC (Alg. 5) and a least-squares
+    refit, the class (Alg. 6), the inliers taken, planes of ≤ nMin inliers, dropped classes, thin strips and
+    bent strips set apart; then again on the window's rest, up to per_window planes (1 = the thesis).
+    Returns (n_out, n_pl)."""
+    wx, wy, wz = win[2], win[3], win[4]
+    sx, sy, sz, sidx = sc[0], sc[1], sc[2], sc[3]
+    bx, by, bz, mom = sc[4], sc[5], sc[6], sc[16]
+    na = k
+    for pw in range(prm.per_window):
+        # a further plane only where enough of the window is left (a residue of < extra_min of it is mostly the
+        # edges and noise of the planes found)
+        if na <= prm.n_min or (pw > 0 and na < prm.extra_min * k):
+            break
+        ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, na, prm.eps, prm.beta, prm.subset, prm.max_iter, state, sx, sy,
+                                       sz, sidx)
+        if not ok:
+            break
+        # least-squares refit on the subset's inliers; the final plane is refitted from all its inliers' moments
+        cnt, nx, ny, nz, d = _inlier_fit_nb(sx, sy, sz, min(na, prm.subset), nx, ny, nz, d, prm.eps)
+        if cnt < 3:
+            break
+        if d < 0:  # rectify: the normal faces the camera
+            nx, ny, nz, d = -nx, -ny, -nz, -d
+        cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
+                           prm.ground_max_h)
+        start = n_out
+        na, n_in, n_out, cls, dropped = _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat,
+                                                       W, H, st, lbl, out, n_out, n_pl, stats)
+        if n_in <= prm.n_min:  # too few inliers (thesis: nMin): they are outliers
+            n_out = _unmark_nb(st, W, out[0], start, n_out)
+            stats[S_OUTLIERS] += n_in
+            break
+        if dropped:
+            stats[S_DROPPED] += n_in
+            continue
+        ok, nx, ny, nz, d = _accept_plane_nb(prm, mom, n_in, start, n_out, out[1], bx, by, bz, stats)
+        if not ok:
+            n_out = _unmark_nb(st, W, out[0], start, n_out)
+            stats[S_OUTLIERS] += n_in
+            continue
+        _record_plane_nb(out, n_pl, nx, ny, nz, d, cls, n_in, mom)
+        n_pl += 1
+    stats[S_OUTLIERS] += na
+    return n_out, n_pl
+
+
+@njit(cache=True, error_model="numpy")
+def _fspf_plus_nb(depth, prm, axes, drop, state, bufs, out, stats):
+    """FSPF+ (thesis Alg. 3) on one depth image. prm: Params; axes: (up, forward, left); drop: bool per class;
+    bufs: (st, cand, rows, cols, x, y, z, plane label) of ≥ H·W entries, reused from frame to frame; out: (pixels,
+    points, plane, normals, offsets, classes, counts, moments). Returns (points, planes) written to out."""
+    H, W = depth.shape
+    flat = depth.ravel()
+    st, cand, lbl = bufs[0], bufs[1], bufs[7]  # st: 0 ineligible, 1 eligible, 2 consumed, 3 a kept plane's point
+    win = (bufs[2], bufs[3], bufs[4], bufs[5], bufs[6])
+    stats[:] = 0
+    m = _depth_constraints_nb(flat, prm.min_d, prm.max_d, st, cand)
+    stats[S_PIXELS], stats[S_INELIGIBLE] = H * W, H * W - m
+    remaining = m
+    stop = (1.0 - prm.frac) * m  # nRequired: stop when this few eligible pixels are left unexamined
     tx = np.empty(W, np.float32)  # x = z·(c − cx)/fx, y = z·(r − cy)/fy
     ty = np.empty(H, np.float32)
     for c in range(W):
-        tx[c] = (c - cx) / fx
+        tx[c] = (c - prm.cx) / prm.fx
     for r in range(H):
-        ty[r] = (r - cy) / fy
-    sx = np.empty(subset, np.float32)
-    sy = np.empty(subset, np.float32)
-    sz = np.empty(subset, np.float32)
-    bx = np.empty(256, np.float32)
-    by = np.empty(256, np.float32)
-    bz = np.empty(256, np.float32)
-    qx = np.empty(256, np.float32)  # the coherence test's scratch
-    qy = np.empty(256, np.float32)
-    qz = np.empty(256, np.float32)
-    ux = np.empty(256, np.float32)
-    uy = np.empty(256, np.float32)
-    uz = np.empty(256, np.float32)
-    sidx = np.empty(subset, np.int64)
-    bidx = np.empty(256, np.int64)
-    uidx = np.empty(256, np.int64)
-    noise = np.empty(512)
-    mom = np.empty(9)
-    cos_split = np.cos(np.radians(2.0))
-    n_split = 0
-    n_out = 0
-    n_pl = 0
-    n_drop = 0
-    n_outl = 0
-    n_win = 0
-    n_vis = 0
-    n_bent = 0
-    n_thin = 0
-    thin2 = (min_width * eps) ** 2
-    tail = max(tail_eps, 1.0) * eps
-    bend_rms2 = (0.2 * eps) ** 2  # residual RMS below ε/5: flat enough, no bend test
+        ty[r] = (r - prm.cy) / prm.fy
+    sc = _scratch_nb(prm.subset)
+    n_out = n_pl = 0
     while remaining > stop and m > 0:
-        # p0: a random eligible, unconsumed pixel (consumed candidates are removed lazily)
-        i = _randint(state, m)
-        i0 = cand[i]
-        if st[i0] != 1:
-            m -= 1
-            cand[i] = cand[m]
+        i0, m = _draw_p0_nb(state, cand, m, st)
+        if i0 < 0:
             continue
-        r0 = i0 // W
-        c0 = i0 - r0 * W
-        # p1, p2: eligible pixels within Ω of p0
-        found = 0
-        j1 = -1
-        zs = np.float64(flat[i0])
-        for _ in range(40):
-            r = r0 + _randint(state, 2 * omega + 1) - omega
-            c = c0 + _randint(state, 2 * omega + 1) - omega
-            if r < 0 or r >= H or c < 0 or c >= W:
-                continue
-            j = r * W + c
-            if j == i0 or j == j1 or st[j] != 1:
-                continue
-            zs += flat[j]
-            j1 = j
-            found += 1
-            if found == 2:
-                break
-        if found < 2:  # an isolated pixel: consume it as an outlier
+        zbar = _draw_p1_p2_nb(state, flat, st, i0, W, H, prm.omega)
+        if zbar < 0:  # an isolated pixel: consumed as an outlier
             st[i0] = 2
             remaining -= 1
-            n_outl += 1
+            stats[S_OUTLIERS] += 1
             continue
-        # the window: the world size Δ at the mean depth, W = fx·Δ/z̄, H = fy·Δ/z̄, clipped at the border
-        zbar = zs / 3.0
-        hw = int(0.5 * fx * delta / zbar + 0.5)
-        hh = int(0.5 * fy * delta / zbar + 0.5)
-        r_lo, r_hi = max(0, r0 - hh), min(H - 1, r0 + hh)
-        c_lo, c_hi = max(0, c0 - hw), min(W - 1, c0 + hw)
-        n_win += 1
-        n_vis += (r_hi - r_lo + 1) * (c_hi - c_lo + 1)
-        k = 0
-        for r in range(r_lo, r_hi + 1):
-            base = r * W
-            yr = ty[r]
-            for c in range(c_lo, c_hi + 1):
-                j = base + c
-                if st[j] == 1:
-                    st[j] = 2
-                    z = flat[j]
-                    wr[k] = r
-                    wc[k] = c
-                    wx[k] = z * tx[c]
-                    wy[k] = z * yr
-                    wz[k] = z
-                    k += 1
+        k = _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats)
         remaining -= k
-        if k <= n_min:
-            n_outl += k
+        if k <= prm.n_min:
+            stats[S_OUTLIERS] += k
             continue
-        na = k
-        for _pw in range(per_window):
-            # a further plane only where enough of the window is left (a residue of < extra_min of it is
-            # mostly the edges and noise of the planes found)
-            if na <= n_min or (_pw > 0 and na < extra_min * k):
-                break
-            ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz, sidx)
-            if not ok:
-                break
-            # least-squares refit on the subset's inliers (≤ subset points); the final plane is refitted
-            # below from the moments of all its inliers
-            cnt, nx, ny, nz, d = _inlier_fit_nb(sx, sy, sz, min(na, subset), nx, ny, nz, d, eps)
-            if cnt < 3:
-                break
-            if d < 0:  # rectify: the normal faces the camera
-                nx, ny, nz, d = -nx, -ny, -nz, -d
-            cls = _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h)
-            dropped = drop[cls]
-            # one pass: inliers of the plane go out, the rest are compacted to the front; a plane whose inliers
-            # are not one surface (the coherence test on them) shrinks to its strongest sub-plane and takes again
-            start = n_out
-            for attempt in range(2):
-                keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W,
-                                                          st, lbl, n_pl, out_pix, out_pts, out_plane, n_out, mom)
-                n_outl += n_tail
-                if attempt == 1 or not coherence or dropped or n_in <= n_min:
-                    break
-                nb = _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W)
-                split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, nx, ny, nz, d, eps, beta,
-                                                             max_iter, state, qx, qy, qz, ux, uy, uz, uidx, noise,
-                                                             cos_split)
-                if not split:
-                    break
-                n_split += 1
-                na = _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W)
-                n_out = start
-                nx, ny, nz, d = sx_, sy_, sz_, sd_
-                cls = _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h)
-                dropped = drop[cls]
-            m0, m1, m2, m3, m4, m5, m6, m7, m8 = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6], mom[7], mom[8]
-            na = keep
-            if n_in <= n_min:  # too few inliers (thesis: nMin): they are outliers
-                n_out = _unmark_nb(st, W, out_pix, start, n_out)
-                n_outl += n_in
-                break
-            if dropped:
-                n_drop += n_in
-                continue
-            # the plane refitted from all its inliers' moments, rectified again; its inliers must spread
-            # in two directions (middle eigenvalue), else the plane through a thin strip is arbitrary
-            inv = 1.0 / n_in
-            mx, my, mz = m0 * inv, m1 * inv, m2 * inv
-            C = np.empty((3, 3))
-            C[0, 0] = m3 * inv - mx * mx
-            C[0, 1] = C[1, 0] = m4 * inv - mx * my
-            C[0, 2] = C[2, 0] = m5 * inv - mx * mz
-            C[1, 1] = m6 * inv - my * my
-            C[1, 2] = C[2, 1] = m7 * inv - my * mz
-            C[2, 2] = m8 * inv - mz * mz
-            ev, v = np.linalg.eigh(C)
-            if ev[1] < thin2:  # a strip no wider than the inlier band: its plane is not determined
-                n_out = _unmark_nb(st, W, out_pix, start, n_out)
-                n_outl += n_in
-                n_thin += 1
-                continue
-            fx_, fy_, fz_ = v[0, 0], v[1, 0], v[2, 0]
-            fd = -(fx_ * mx + fy_ * my + fz_ * mz)
-            if fd < 0:
-                fx_, fy_, fz_, fd = -fx_, -fy_, -fz_, -fd
-            # a strip of a curved surface (a person, a pillar) bends: its points become outliers, the rest
-            # of the window may still hold a plane. Only planes whose residual spread is not far below ε
-            # are tested, on ≤ 256 of their inliers, evenly strided.
-            if bend_max > 0 and ev[0] > bend_rms2:
-                step = max(1, n_in // 256)
-                nb = 0
-                for a in range(start, n_out, step):
-                    if nb == 256:
-                        break
-                    bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
-                    nb += 1
-                if _curved_nb(bx, by, bz, nb, fx_, fy_, fz_, fd, eps, 0.5, bend_max):
-                    n_out = _unmark_nb(st, W, out_pix, start, n_out)
-                    n_bent += 1
-                    n_outl += n_in
-                    continue
-            pl_n[n_pl, 0] = fx_
-            pl_n[n_pl, 1] = fy_
-            pl_n[n_pl, 2] = fz_
-            pl_d[n_pl] = fd
-            pl_cls[n_pl] = cls
-            pl_cnt[n_pl] = n_in
-            pl_mom[n_pl, 0] = m0
-            pl_mom[n_pl, 1] = m1
-            pl_mom[n_pl, 2] = m2
-            pl_mom[n_pl, 3] = m3
-            pl_mom[n_pl, 4] = m4
-            pl_mom[n_pl, 5] = m5
-            pl_mom[n_pl, 6] = m6
-            pl_mom[n_pl, 7] = m7
-            pl_mom[n_pl, 8] = m8
-            n_pl += 1
-        n_outl += na
-    n_grown = 0
-    if grow and remaining > 0:
-        n_out, n_grown = _grow_nb(flat, W, H, tx, ty, eps, st, lbl, wr, pl_n, pl_d, pl_cnt, pl_mom, out_pix,
-                                  out_pts, out_plane, n_out)
-        remaining -= n_grown
-    stats[0] = npx
-    stats[1] = npx - n_elig
-    stats[2] = n_out
-    stats[3] = n_drop
-    stats[4] = n_outl
-    stats[5] = remaining
-    stats[6] = n_win
-    stats[7] = n_vis
-    stats[8] = n_bent
-    stats[9] = n_thin
-    stats[10] = n_split
-    stats[11] = n_grown
+        n_out, n_pl = _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
+                                        stats)
+    if prm.grow and remaining > 0:  # our extension: the unexamined pixels next to a plane join it
+        n_out, grown = _grow_nb(flat, W, H, tx, ty, prm.eps, st, lbl, win[0], out[3], out[4], out[6], out[7], out[0],
+                                out[1], out[2], n_out)
+        remaining -= grown
+        stats[S_GROWN] = grown
+    stats[S_INLIERS] = n_out
+    stats[S_REMAINING] = remaining
     return n_out, n_pl
 
 
@@ -1339,13 +1399,16 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     out_pix, out_pts, out_plane = ws["out_pix"], ws["out_pts"], ws["out_plane"]
     pl_n, pl_d, pl_cls, pl_cnt, pl_mom = ws["pl_n"], ws["pl_d"], ws["pl_cls"], ws["pl_cnt"], ws["pl_mom"]
     stats = np.zeros(12, np.int64)
-    n, p = _fspf_plus_nb(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.n_min, cfg.omega_px,
-                         cfg.delta_m, cfg.epsilon_m, cfg.beta, cfg.analysed_fraction, cfg.ransac_subset,
-                         cfg.ransac_max_iter, cfg.planes_per_window, cfg.extra_min_fraction, cfg.bend_max, cfg.min_width,
-                         cfg.tail_eps, cfg.coherence, cfg.grow,
-                         *classes_of.args(),
-                         _drop_mask(cfg), _rng_state(seed), ws["st"], ws["cand"], ws["wr"], ws["wc"], ws["wx"], ws["wy"],
-                         ws["wz"], ws["lbl"], out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom, stats)
+    prm = Params(float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(dcfg.min_depth),
+                 float(dcfg.max_depth), int(cfg.n_min), int(cfg.omega_px), float(cfg.delta_m), float(cfg.epsilon_m),
+                 float(cfg.beta), float(cfg.analysed_fraction), int(cfg.ransac_subset), int(cfg.ransac_max_iter),
+                 int(cfg.planes_per_window), float(cfg.extra_min_fraction), float(cfg.bend_max), float(cfg.min_width),
+                 float(cfg.tail_eps), bool(cfg.coherence), bool(cfg.grow), float(cfg.slanted_min_deg),
+                 float(cfg.slanted_max_deg), float(classes_of.cam_h), float(cfg.ground_max_height))
+    bufs = (ws["st"], ws["cand"], ws["wr"], ws["wc"], ws["wx"], ws["wy"], ws["wz"], ws["lbl"])
+    out = (out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom)
+    n, p = _fspf_plus_nb(depth, prm, (classes_of.up, classes_of.fwd, classes_of.left), _drop_mask(cfg),
+                         _rng_state(seed), bufs, out, stats)
     pts, plane, pix = (out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy()) if copy else \
         (out_pts[:n], out_plane[:n], out_pix[:n])
     planes = Planes(pts, plane, pix, pl_n[:p].copy(), pl_d[:p].copy(),

@@ -304,7 +304,7 @@ def _plane_rms_nb(n, s, ss, cov):
     for a in range(3):
         for b in range(3):
             cov[a, b] = ss[a, b] / n - (s[a] / n) * (s[b] / n)
-    return np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))
+    return np.sqrt(max(np.linalg.eigh(cov)[0][0], 0.0))
 
 
 @njit(cache=True)
@@ -348,7 +348,7 @@ def _merge_nb(normals, offsets, cnt, s, ss, order, cos_max, offset_m, rms_step):
             for a in range(3):
                 for b in range(3):
                     cov[a, b] = (g_ss[g, a, b] + ss[i, a, b]) / n_m - c[a] * c[b]
-            rms_m = np.sqrt(max(np.linalg.eigvalsh(cov)[0], 0.0))
+            rms_m = np.sqrt(max(np.linalg.eigh(cov)[0][0], 0.0))
             if rms_m <= max(g_rms0[g], rms_i) + rms_step:
                 hit = g
                 break

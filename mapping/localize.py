@@ -129,7 +129,8 @@ class _Filter:
         self.found = False
         self.tight = 0  # filter updates in a row with a tight set
         self.tracking = False  # the last scan's pose was claimed
-        self.restarted = False  # a gap in the scans: the pose is searched for again as at the start
+        self.restarted = False  # a gap in the scans or a wrong pose: the pose is searched for again
+        self.bad_since: float | None = None  # log time since which the refined pose's readings pass through walls
         self.lost_since = -1
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
@@ -138,9 +139,9 @@ class _Filter:
             raise ConfigError(f"config [localize] odom_alpha = {cfg.odom_alpha!r} must be four numbers (α1..α4)")
 
     def restart(self) -> None:
-        """The scans stopped for longer than max_gap_s: the robot may have been carried anywhere meanwhile. A global
-        set joins the particles (moved by the odometry over the gap at the next update, if any), and the pose must
-        be found again as at the start."""
+        """The scans stopped for longer than max_gap_s (the robot may have been carried anywhere meanwhile), or the
+        tracked pose proved wrong: a global set joins the particles (moved by the odometry at the next update), and
+        the pose must be found again: claimed once one mode has held most of the weight for converged_updates."""
         self.parts = np.concatenate((self.parts, self.f.sample_free(self.global_n, self.rng)))
         self.w = np.full(len(self.parts), 1.0 / len(self.parts))
         self.tight = 0
@@ -261,6 +262,14 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
                            cfg.refine_prior_laser if inp.source == "laser" else None)
             tracked = pose
+            # kidnapped (or wrong from the start): the readings pass through the map's walls at the refined pose
+            if cfg.lost_through < 1.0 and mcl.through_fraction(f, pose, pts, cfg.through_tol) > cfg.lost_through:
+                flt.bad_since = inp.stamps[i] if flt.bad_since is None else flt.bad_since
+                if inp.stamps[i] - flt.bad_since >= cfg.lost_through_s:
+                    flt.restart()
+                    flt.bad_since, tracked, status[i] = None, None, LOST
+            else:
+                flt.bad_since = None
         else:
             tracked = None
         poses[i], fposes[i] = pose, pose_f

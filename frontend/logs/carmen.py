@@ -164,7 +164,34 @@ class CarmenLog(LogReader):
 
     def read(self, topics: Iterable[str] | None = None) -> Iterator:
         wanted = None if topics is None else set(topics)
+        stamps = _ScanStamps(self.path.name)
         for rec in reorder(self._lines(wanted), window_ns=2_000_000_000):
             rec = self._usable(rec)  # the read-time checks every reader applies (frontend/logs/validate.py)
             if rec is not None:
+                if isinstance(rec, Scan):
+                    stamps.check(rec.stamp_ns)
                 yield rec
+
+
+class _ScanStamps:
+    """Some research logs write no scan times (every FLASER line stamped 0): read as they are, the whole run would
+    collapse into one instant and map as a single scan. The first SAME scans sharing one time end the read."""
+
+    SAME = 20  # at the slowest real laser's 5 Hz, 20 scans span 4 s: no logger stamps them all alike
+
+    def __init__(self, name: str) -> None:
+        self.name, self.first, self.n = name, None, 0
+
+    def check(self, stamp_ns: int) -> None:
+        if self.n < 0:
+            return
+        if self.first is None:
+            self.first = stamp_ns
+        if stamp_ns != self.first:
+            self.n = -1  # the times move: nothing more to check
+            return
+        self.n += 1
+        if self.n >= self.SAME:
+            raise LogError(f"{self.name}: its first {self.n} laser scans all carry the time {self.first / 1e9:.3f} s, "
+                           f"so the log has no usable scan times; re-stamp it with `python -m kosmap.tools.laserimport "
+                           f"{self.name} OUT.clf --format carmen` and map OUT.clf")

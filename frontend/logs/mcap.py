@@ -401,7 +401,7 @@ def _checked_chunk(fh, size: int, ci, channels: dict, take: dict, on_damage) -> 
     return out
 
 
-class _ChunkFault(Exception):
+class _ChunkFault(McapError):
     """A damaged chunk, in words; `crc`: only its CRC disagrees (its data decompress and may be read)."""
 
     def __init__(self, text: str, crc: bool) -> None:
@@ -443,6 +443,8 @@ _VIEW_OVER = 65536  # a message larger than this (a depth image) is a view into 
 def _chunk_data(compression: str, raw, size: int, crc: int) -> bytes:
     """A chunk's records, decompressed within its stated size (frontend/logs/inflate.py) and checked against its
     CRC-32 (mcap spec: uncompressed_crc, 0 when not written); _ChunkFault when either fails."""
+    if compression not in ("", "zstd", "lz4"):
+        raise _ChunkFault(f"its compression {compression!r} is not one of MCAP's (zstd, lz4 or none)", False)
     try:
         data = inflate(compression, raw, size)
     except ChunkDamage as e:

@@ -141,7 +141,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         if spill_dir is not None:
             shutil.rmtree(spill_dir, ignore_errors=True)
     try:
-        files = {k: final_out / p.name for k, p in files.items()}
+        files = {k: final_out / p.name if isinstance(p, Path) else p for k, p in files.items()}  # where they now are
         files["manifest"] = commit(stage, partial=read.partial)
     except BaseException:
         discard(stage)

@@ -144,3 +144,25 @@ def test_slam_over_an_odometry_jump_maps_the_ring_not_kilometres(ring, tmp_path,
     t, p = read_tum(out / "trajectory.tum")
     e = ate(t, p, log.stamps_ns[:N] * 1e-9, log.truth[:N])
     assert e["n"] == N and e["rmse"] < 0.2
+
+
+def test_scans_without_times_are_refused_and_the_importer_restamps_them(ring, tmp_path, capsys):
+    """A log whose laser lines are all stamped 0 (as some research logs are) would map as one scan: it is refused in
+    one line naming the importer, and the importer's re-stamped log maps the whole run."""
+    log, lines = ring
+    zero = []
+    for ln in lines:
+        f = ln.split()
+        if f[0] == "FLASER":
+            f[-3] = f[-1] = "0.000000"
+        zero.append(" ".join(f))
+    path = _write(tmp_path, [ln for ln in zero if not ln.startswith("ODOM")], "untimed.clf")
+    assert main(["slam", str(path), "--source", "laser", "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "no usable scan times" in err and "kosmap.tools.laserimport" in err, err
+    assert not (tmp_path / "out").exists()
+    from kosmap.tools.laserimport import main as restamp
+
+    restamp([str(path), str(tmp_path / "stamped.clf"), "--format", "carmen"])
+    assert main(["slam", str(tmp_path / "stamped.clf"), "--source", "laser", "--out", str(tmp_path / "ok")]) == 0
+    assert len(read_tum(tmp_path / "ok" / "trajectory.tum")[0]) > 0.9 * N

@@ -134,7 +134,7 @@ def test_real_bag_with_one_flipped_byte_in_a_bz2_chunk(tmp_path):
 
 @pytest.mark.slow
 def test_slam_on_a_bag_with_a_damaged_chunk_completes_with_a_warning(tmp_path, capsys):
-    """The reported failure (`slam` ended in `OSError: Invalid data stream`): now the trajectory is built from the
+    """A bz2 chunk with a flipped byte (an `OSError: Invalid data stream` inside bz2) is skipped: the trajectory is built from the
     remaining chunks, bridged over the lost stretch, and scored against the log's ground truth."""
     import json
 

@@ -103,7 +103,7 @@ def test_lz4_frame_claiming_2_40_bytes_is_skipped(tmp_path, indexed):
 
 @pytest.mark.parametrize("compression", ["zstd", "lz4"])
 def test_flipped_byte_fails_the_chunk_crc(tmp_path, compression):
-    """One flipped byte inside a compressed chunk used to give a different map without a word: its CRC now
+    """One flipped byte inside a compressed chunk would give a different map without a word if read as it is: its CRC
     disagrees, and on_damage says what happens (skip: the other chunks; read: every message; fail: one error)."""
     whole = tmp_path / "whole.mcap"
     recs = small_mcap(whole, compression)

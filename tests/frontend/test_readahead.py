@@ -118,7 +118,7 @@ def test_damage_is_a_log_error_or_a_warning(tmp_path, compression):
         for r in records(n=30, width=64, height=48):
             w.write(r)
     data = bytearray(p.read_bytes())
-    errors, warned = set(), 0
+    errors, warned, skipped = set(), 0, 0
     for k in range(2, 38):  # bytes overwritten across the file: each read ends normally or with a LogError
         d = bytearray(data)
         at = len(d) * k // 40
@@ -129,15 +129,13 @@ def test_damage_is_a_log_error_or_a_warning(tmp_path, compression):
             with open_log(q) as log:
                 list(log.read())
                 warned += any("does not decode" in w for w in log.warnings)  # a message's bytes: it is skipped
-        except LogError as e:  # the chunks' structure
+                skipped += any("is damaged" in w and "skipped" in w for w in log.warnings)  # a chunk: skipped
+        except LogError as e:  # the file's structure
             errors.add(str(e).split("(")[0])
-    # zstd: damage in a chunk's structure is an error, in a message's bytes a warning; lz4 checksums its frames, so
-    # damage anywhere in a chunk is an error; uncompressed, the overwritten bytes are mostly pixels, which decode
-    if compression == "zstd":
-        assert errors and warned, (errors, warned)
-    elif compression == "lz4":
-        assert errors, errors
-    assert all("damaged inside" in e for e in errors)
+    # the chunks' CRCs (McapWriter writes them) catch overwritten bytes in any chunk, compressed or not: the chunk is
+    # skipped with a warning and the rest read; only damage outside the chunks can end a read, with a LogError
+    assert skipped >= 30, (skipped, warned, errors)  # (36 of 36 land in chunks of this file)
+    assert all("damaged" in e or "truncated" in e for e in errors), errors
     assert _threads() == 0
 
 

@@ -104,8 +104,8 @@ def test_a_log_without_a_usable_scan_is_one_line_naming_why(tmp_path, capsys, cm
 
 @pytest.mark.parametrize("cmd", [["scan"], ["build", "-j", "0", "-q"], ["slam", "--source", "kos", "-q"]])
 def test_a_log_whose_depth_frames_are_all_unusable_is_one_line_and_leaves_nothing(tmp_path, capsys, cmd):
-    """1×1 depth images: skipped by the reader; the scan used to write kos.mcap, summary.json and its manifest and
-    then fail in a format string; build and slam said "none of the 0 scans"."""
+    """1×1 depth images: skipped by the reader; scan, build and slam then stop with one line that says why, and the
+    run leaves no output folder (no kos.mcap, summary.json or manifest)."""
     log = _depth_log(tmp_path / "one_px.mcap", np.full((1, 1), 2000, np.uint16))
     out = tmp_path / "out"
     assert main([cmd[0], str(log), "--out", str(out), *cmd[1:]]) == 2

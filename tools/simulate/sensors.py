@@ -2,7 +2,7 @@
 
 Kinect v2 (time of flight), after Fankhauser et al., "Kinect v2 for mobile robot navigation: evaluation and
 modeling" (ICAR 2015): the axial noise grows with depth and with the incidence angle θ,
-σ(z, θ) = σ₁·z^p + σ_θ·z^1.5·θ²/(π/2 − θ)², with σ₁·z^p through ~1.5 mm at 1 m and ~1 cm at 4 m (the issue's
+σ(z, θ) = σ₁·z^p + σ_θ·z^1.5·θ²/(π/2 − θ)², with σ₁·z^p through ~1.5 mm at 1 m and ~1 cm at 4 m (Fankhauser et al.'s
 figures; p = log(σ₄/σ₁)/log 4 ≈ 1.37). Pixels drop out at grazing incidence, at random, beyond the
 8 m the sensor reports and in the corners the rectification leaves empty; at depth edges the sensor mixes
 foreground and background into "flying pixels" that lie on no surface.
