@@ -206,7 +206,7 @@ def test_self_consistency_tells_a_bent_map_from_a_good_one():
     is a run bent by a wrong loop under a plain Gaussian kernel, each with one warning line. The ground truth
     agrees (ATE). The Cauchy kernel keeps the same wrong loop out: not bent."""
     from kosmap.frontend import se2 as S
-    from kosmap.mapping.consistency import consistency, warning
+    from kosmap.backend.consistency import consistency, warning
 
     ring = make_log(seed=0)
     good, e_good, slam = _ring_run(ring, GraphConfig())
