@@ -240,13 +240,7 @@ class PoseGraph:
         return i
 
     def _noise(self, sigmas: np.ndarray, robust: bool):
-        base = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
-        if not robust or self.cfg.robust_kernel in ("none", "gnc"):
-            return base
-        k = self.cfg.robust_scale
-        est = (gtsam.noiseModel.mEstimator.Cauchy.Create(k) if self.cfg.robust_kernel == "cauchy"
-               else gtsam.noiseModel.mEstimator.Huber.Create(k))
-        return gtsam.noiseModel.Robust.Create(est, base)
+        return self._robust(gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float)), robust)
 
     def _robust(self, base, robust: bool):
         """`base` under the loop kernel (Cauchy or Huber) when `robust`; GNC and none leave it as it is."""

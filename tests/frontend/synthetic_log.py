@@ -60,6 +60,15 @@ def copy_log(src, dst, keep):
     return dst
 
 
+def room_laser_log(folder, seed: int, duration: float):
+    """`duration` s of the simulated room, its laser, odometry and gyro only (no depth: a build of it is quick)."""
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+
+    full = folder / "room.mcap"
+    simulate(load_world("room"), SimConfig(seed=seed, duration=duration), full)
+    return copy_log(full, folder / "laser.mcap", lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+
+
 def carmen_lines(scans, odom, odom_lines: bool = True) -> list[str]:
     """CARMEN log lines (FLASER, and ODOM when `odom_lines`) of 180° scans and N×3 odometry poses at their stamps:
     the format of the Radish logs (frontend/logs/carmen.py), with the scan pose equal to the odometry."""

@@ -3,6 +3,7 @@ uint16 millimetre frames and float32 metre frames, over more frames than the rin
 
 import dataclasses
 import sys
+import threading
 
 import numpy as np
 import pytest
@@ -129,10 +130,13 @@ def test_a_worker_that_dies_is_a_clear_error_not_a_hang():
 
 
 class _Odd(Exception):
-    """An exception that pickles but does not unpickle (its __init__ wants two arguments, its args hold one)."""
+    """An exception that does not survive a pickle round trip: it holds a lock (pickling it fails), and its __init__
+    wants two arguments where its args hold one (unpickling it fails, unless a library such as tblib, which Dask
+    installs, has taught pickle to rebuild exceptions without __init__)."""
 
     def __init__(self, a, b):
         super().__init__(f"{a}/{b}")
+        self.lock = threading.Lock()
 
 
 def _raise_odd(*args, **kwargs):

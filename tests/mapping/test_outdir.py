@@ -9,11 +9,10 @@ import signal
 
 import pytest
 
-from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping.config import load_config
 from kosmap.mapping.build import BUILD_FILES, build
 from kosmap.mapping.runtime.outdir import MANIFEST, OutputError, check_out, claim, commit, discard
-from tests.frontend.synthetic_log import copy_log
+from tests.frontend.synthetic_log import room_laser_log
 from kosmap.tools.cli import main
 
 SETS = ["build.depth_rate=0"]
@@ -22,12 +21,7 @@ SETS = ["build.depth_rate=0"]
 @pytest.fixture(scope="module")
 def laser_log(tmp_path_factory):
     """2.5 s of the simulated room, its laser, odometry and gyro only (a build of it takes about a second)."""
-    from kosmap.tools.simulate import SimConfig, load_world, simulate
-
-    d = tmp_path_factory.mktemp("outdir")
-    full = d / "room.mcap"
-    simulate(load_world("room"), SimConfig(seed=2, duration=2.5), full)
-    return copy_log(full, d / "laser.mcap", lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+    return room_laser_log(tmp_path_factory.mktemp("outdir"), seed=2, duration=2.5)
 
 
 def _snapshot(d):

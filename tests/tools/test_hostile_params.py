@@ -6,21 +6,15 @@ from __future__ import annotations
 import pytest
 
 from kosmap.frontend.errors import ConfigError
-from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping.config import load_config
 from kosmap.tools.cli import main
-from tests.frontend.synthetic_log import copy_log
+from tests.frontend.synthetic_log import room_laser_log
 
 
 @pytest.fixture(scope="module")
 def laser_log(tmp_path_factory):
     """2 s of the simulated room, its laser, odometry and gyro only."""
-    from kosmap.tools.simulate import SimConfig, load_world, simulate
-
-    d = tmp_path_factory.mktemp("params")
-    full = d / "room.mcap"
-    simulate(load_world("room"), SimConfig(seed=4, duration=2.0), full)
-    return copy_log(full, d / "laser.mcap", lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+    return room_laser_log(tmp_path_factory.mktemp("params"), seed=4, duration=2.0)
 
 
 def _one_line(capsys) -> str:

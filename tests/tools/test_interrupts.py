@@ -14,13 +14,12 @@ from pathlib import Path
 
 import pytest
 
-from kosmap.frontend.records import CameraModel, DepthFrame
 from kosmap.mapping import outdir
 from kosmap.mapping.config import load_config
 from kosmap.mapping.build import BUILD_FILES, BuildInterrupted, build
 from kosmap.mapping.runtime.outdir import BACKUP_PREFIX, MANIFEST, STAGE_PREFIX, claim
 from kosmap.tools.cli import main
-from tests.frontend.synthetic_log import copy_log
+from tests.frontend.synthetic_log import room_laser_log
 
 SETS = ["build.depth_rate=0"]
 KOSMAP = Path(sys.executable).with_name("kosmap")
@@ -29,12 +28,7 @@ KOSMAP = Path(sys.executable).with_name("kosmap")
 @pytest.fixture(scope="module")
 def laser_log(tmp_path_factory):
     """3 s of the simulated room, its laser, odometry and gyro only (a build of it takes about a second)."""
-    from kosmap.tools.simulate import SimConfig, load_world, simulate
-
-    d = tmp_path_factory.mktemp("interrupts")
-    full = d / "room.mcap"
-    simulate(load_world("room"), SimConfig(seed=3, duration=3.0), full)
-    return copy_log(full, d / "laser.mcap", lambda r: not isinstance(r, (DepthFrame, CameraModel)))
+    return room_laser_log(tmp_path_factory.mktemp("interrupts"), seed=3, duration=3.0)
 
 
 @pytest.fixture(scope="module")

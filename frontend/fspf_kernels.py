@@ -1,0 +1,549 @@
+"""The compiled pieces FSPF and FSPF+ share (frontend/fspf.py): reproducible random numbers, plane classes
+(thesis Alg. 6), RANSAC (Alg. 5) and least-squares refits, and the tests and steps of kosmap's extensions
+(bends, bridging planes, partitioning a window, region growing)."""
+
+from __future__ import annotations
+
+
+import numpy as np
+from numba import njit
+
+
+# ---- random numbers: xorshift64 seeded by splitmix64 (fast inside numba, reproducible) --------------------------------
+
+_M64 = (1 << 64) - 1
+
+
+def rng_state(seed: int) -> np.ndarray:
+    z = (int(seed) + 0x9E3779B97F4A7C15) & _M64
+    z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & _M64
+    z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & _M64
+    z ^= z >> 31
+    return np.array([z or 0x2545F4914F6CDD1D], dtype=np.uint64)
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _next(state):
+    x = state[0]
+    x ^= x << np.uint64(13)
+    x ^= x >> np.uint64(7)
+    x ^= x << np.uint64(17)
+    state[0] = x
+    return x
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _randint(state, n):
+    """Uniform integer in [0, n)."""
+    return np.int64((_next(state) >> np.uint64(11)) % np.uint64(n))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _uniform(state):
+    """Uniform float in [0, 1)."""
+    return np.float64(_next(state) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+
+
+# ---- shared numba pieces -------------------------------------------------------------------------------------------------
+
+@njit(cache=True, error_model="numpy")
+def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
+    """planes.classify for one normal (thesis Alg. 6, plus slanted and raised); keep the two identical."""
+    cu = nx * up[0] + ny * up[1] + nz * up[2]
+    a = abs(cu)
+    if a > 1.0:
+        a = 1.0
+    tilt = np.degrees(np.arccos(a))
+    if tilt < sl_min:
+        if cu <= 0:
+            return 1
+        if cam_h == cam_h and cam_h - d * cu > ground_max_h:  # cam_h is NaN without a mount
+            return 6
+        return 0
+    if tilt > sl_max:
+        hx, hy, hz = nx - cu * up[0], ny - cu * up[1], nz - cu * up[2]
+        hf = hx * fwd[0] + hy * fwd[1] + hz * fwd[2]
+        hl = hx * left[0] + hy * left[1] + hz * left[2]
+        if -hf >= abs(hl):
+            return 4
+        return 2 if hl < 0 else 3
+    return 5
+
+
+@njit(cache=True, error_model="numpy")
+def classify_many(normals, offsets, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
+    out = np.empty(len(offsets), np.int8)
+    for k in range(len(offsets)):
+        out[k] = _classify_nb(normals[k, 0], normals[k, 1], normals[k, 2], offsets[k], up, fwd, left, sl_min, sl_max,
+                              cam_h, ground_max_h)
+    return out
+
+
+@njit(cache=True, error_model="numpy")
+def _refit_nb(wx, wy, wz, act, n):
+    """Least-squares plane through the points act[:n]: smallest eigenvector of their covariance."""
+    mx = my = mz = 0.0
+    for a in range(n):
+        q = act[a]
+        mx += wx[q]
+        my += wy[q]
+        mz += wz[q]
+    mx /= n
+    my /= n
+    mz /= n
+    C = np.zeros((3, 3))
+    for a in range(n):
+        q = act[a]
+        dx, dy, dz = wx[q] - mx, wy[q] - my, wz[q] - mz
+        C[0, 0] += dx * dx
+        C[0, 1] += dx * dy
+        C[0, 2] += dx * dz
+        C[1, 1] += dy * dy
+        C[1, 2] += dy * dz
+        C[2, 2] += dz * dz
+    C[1, 0] = C[0, 1]
+    C[2, 0] = C[0, 2]
+    C[2, 1] = C[1, 2]
+    _, v = np.linalg.eigh(C)
+    nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    return nx, ny, nz, -(nx * mx + ny * my + nz * mz)
+
+
+@njit(cache=True, error_model="numpy")
+def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
+    """Least-squares refit on the inliers of (n, d) among the first na points, in one pass over the moments.
+
+    Moments are taken about the first point so that Σppᵀ/n − c·cᵀ stays accurate. Returns (count, n, d).
+    """
+    ox, oy, oz = np.float64(wx[0]), np.float64(wy[0]), np.float64(wz[0])
+    cnt = 0
+    sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+    for a in range(na):
+        x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+        if abs(nx * x + ny * y + nz * z + d) < eps:
+            x -= ox
+            y -= oy
+            z -= oz
+            cnt += 1
+            sx += x
+            sy += y
+            sz += z
+            sxx += x * x
+            sxy += x * y
+            sxz += x * z
+            syy += y * y
+            syz += y * z
+            szz += z * z
+    if cnt < 3:
+        return cnt, nx, ny, nz, d
+    mx, my, mz = sx / cnt, sy / cnt, sz / cnt
+    C = np.empty((3, 3))
+    C[0, 0] = sxx / cnt - mx * mx
+    C[0, 1] = C[1, 0] = sxy / cnt - mx * my
+    C[0, 2] = C[2, 0] = sxz / cnt - mx * mz
+    C[1, 1] = syy / cnt - my * my
+    C[1, 2] = C[2, 1] = syz / cnt - my * mz
+    C[2, 2] = szz / cnt - mz * mz
+    _, v = np.linalg.eigh(C)
+    rx, ry, rz = v[0, 0], v[1, 0], v[2, 0]
+    return cnt, rx, ry, rz, -(rx * (mx + ox) + ry * (my + oy) + rz * (mz + oz))
+
+
+@njit(cache=True, error_model="numpy")
+def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz, sidx):
+    """RANSAC (thesis Alg. 5) over the first na points: 3-point hypotheses scored on ≤ subset random
+    points (copied to sx, sy, sz; their indices to sidx), adaptive stop k = (1 + β·√(1 − w³)) / w³."""
+    if na <= subset:
+        ns = na
+        for s in range(na):
+            sx[s], sy[s], sz[s] = wx[s], wy[s], wz[s]
+            sidx[s] = s
+    else:
+        ns = subset
+        for s in range(subset):
+            q = _randint(state, na)
+            sx[s], sy[s], sz[s] = wx[q], wy[q], wz[q]
+            sidx[s] = q
+    best = -1
+    bx = by = bz = bd = 0.0
+    need = float(max_iter)
+    it = 0
+    while it < need and it < max_iter:
+        it += 1
+        a = _randint(state, na)
+        b = _randint(state, na)
+        c = _randint(state, na)
+        ax, ay, az = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+        ux, uy, uz = wx[b] - ax, wy[b] - ay, wz[b] - az
+        vx, vy, vz = wx[c] - ax, wy[c] - ay, wz[c] - az
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+        if nn < 1e-12:
+            continue
+        nx /= nn
+        ny /= nn
+        nz /= nn
+        d = -(nx * ax + ny * ay + nz * az)
+        cnt = 0
+        fx32, fy32, fz32, fd32, fe32 = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d), np.float32(eps)
+        for s in range(ns):  # float32 so the scoring loop vectorises twice as wide
+            if abs(fx32 * sx[s] + fy32 * sy[s] + fz32 * sz[s] + fd32) < fe32:
+                cnt += 1
+        if cnt > best:
+            best = cnt
+            bx, by, bz, bd = nx, ny, nz, d
+            w3 = (cnt / ns) ** 3
+            if w3 > 0:
+                need = (1.0 + beta * np.sqrt(max(0.0, 1.0 - w3))) / w3
+    return best >= 3, bx, by, bz, bd
+
+
+@njit(cache=True, error_model="numpy")
+def _solve_nb(A, b):
+    """x with A·x = b for a small square A: LU with partial pivoting (LAPACK's dgetf2 + dgetrs, written out;
+    np.linalg.solve's shape checks cost ~5 s of numba compiling on a fresh machine). A and b are overwritten."""
+    n = len(b)
+    piv = np.empty(n, np.int64)
+    for k in range(n):
+        p = k
+        for i in range(k + 1, n):
+            if abs(A[i, k]) > abs(A[p, k]):
+                p = i
+        piv[k] = p
+        if p != k:
+            for j in range(n):
+                A[k, j], A[p, j] = A[p, j], A[k, j]
+        r = 1.0 / A[k, k]
+        for i in range(k + 1, n):
+            A[i, k] *= r
+        for i in range(k + 1, n):
+            for j in range(k + 1, n):
+                A[i, j] -= A[i, k] * A[k, j]
+    for k in range(n):
+        p = piv[k]
+        if p != k:
+            b[k], b[p] = b[p], b[k]
+    for i in range(n):
+        for j in range(i):
+            b[i] -= A[i, j] * b[j]
+    for i in range(n - 1, -1, -1):
+        for j in range(i + 1, n):
+            b[i] -= A[i, j] * b[j]
+        b[i] /= A[i, i]
+    return b
+
+
+@njit(cache=True, error_model="numpy")
+def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
+    """True when the plane's inliers among the RANSAC subset bend: a quadratic in the in-plane coordinates
+    explains more than r2_max of their residual variance and rises by more than bend_max·ε over them.
+
+    Rejects the flat-looking strips RANSAC cuts from curved surfaces (a person, a bin, a pillar): within ε
+    a cylinder of radius r gives a strip of width ~2·√(2rε); noise on a true plane has no such structure.
+    """
+    # an orthonormal basis (e1, e2) of the plane
+    if abs(nx) < 0.9:
+        ax, ay, az = 1.0, 0.0, 0.0
+    else:
+        ax, ay, az = 0.0, 1.0, 0.0
+    e1x, e1y, e1z = ay * nz - az * ny, az * nx - ax * nz, ax * ny - ay * nx
+    e1n = np.sqrt(e1x * e1x + e1y * e1y + e1z * e1z)
+    e1x, e1y, e1z = e1x / e1n, e1y / e1n, e1z / e1n
+    e2x, e2y, e2z = ny * e1z - nz * e1y, nz * e1x - nx * e1z, nx * e1y - ny * e1x
+    A = np.zeros((6, 6))
+    b = np.zeros(6)
+    row = np.empty(6)
+    rs = np.empty(ns)
+    us = np.empty(ns)
+    vs = np.empty(ns)
+    m = 0
+    for s in range(ns):
+        x, y, z = np.float64(sx[s]), np.float64(sy[s]), np.float64(sz[s])
+        r = nx * x + ny * y + nz * z + d
+        if abs(r) < eps:
+            rs[m] = r
+            us[m] = e1x * x + e1y * y + e1z * z
+            vs[m] = e2x * x + e2y * y + e2z * z
+            m += 1
+    if m < 24:
+        return False
+    uc = np.mean(us[:m])
+    vc = np.mean(vs[:m])
+    scale = 0.0
+    for k in range(m):
+        us[k] -= uc
+        vs[k] -= vc
+        scale = max(scale, abs(us[k]), abs(vs[k]))
+    if scale <= 0:
+        return False
+    for k in range(m):
+        u, v = us[k] / scale, vs[k] / scale
+        row[0], row[1], row[2], row[3], row[4], row[5] = 1.0, u, v, u * u, v * v, u * v
+        for i in range(6):
+            b[i] += row[i] * rs[k]
+            for j in range(i, 6):
+                A[i, j] += row[i] * row[j]
+    for i in range(6):
+        A[i, i] += 1e-9
+        for j in range(i):
+            A[i, j] = A[j, i]
+    coef = _solve_nb(A, b)
+    rm = np.mean(rs[:m])
+    tot = 0.0
+    res = 0.0
+    qmin = 1e30
+    qmax = -1e30
+    for k in range(m):
+        u, v = us[k] / scale, vs[k] / scale
+        q = coef[0] + coef[1] * u + coef[2] * v + coef[3] * u * u + coef[4] * v * v + coef[5] * u * v
+        # the bend: the quadratic part only (the linear part is a tilt of the plane)
+        qb = coef[3] * u * u + coef[4] * v * v + coef[5] * u * v
+        qmin = min(qmin, qb)
+        qmax = max(qmax, qb)
+        tot += (rs[k] - rm) ** 2
+        res += (rs[k] - q) ** 2
+    if tot <= 0:
+        return False
+    return 1.0 - res / tot > r2_max and qmax - qmin > bend_max * eps
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _inv_d2(flat, j, step):
+    """|1/z(j−step) − 2/z(j) + 1/z(j+step)|·z(j)²: 1/z is linear in the pixel coordinates on a plane, so this
+    second difference is the sensor's depth noise (√6·σ), whatever the plane; −1 where a neighbour is missing."""
+    z0, za, zb = flat[j], flat[j - step], flat[j + step]
+    if not (za > 0 and zb > 0 and z0 > 0):
+        return -1.0
+    return abs(1.0 / za - 2.0 / z0 + 1.0 / zb) * z0 * z0
+
+
+@njit(cache=True, error_model="numpy")
+def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, max_iter, state,
+                     tx, ty, tz, ux, uy, uz, uidx, noise, cos_split):
+    """Coherence of a plane's inliers (after NCC-RANSAC, Qian & Ye 2014): one surface, or a plane that bridges
+    parallel surfaces (a table and the box tops on it) by cutting a strip of each?
+
+    Tested on a sample of the plane's inliers (sx…, their pixels pix). One surface's inliers scatter
+    about their least-squares plane by the sensor's noise, which the image itself gives in the same pixels: the
+    second difference of inverse depth between each pixel and its row and column neighbours (noise: scratch).
+    A bridging plane's inliers spread over ±ε instead (a tilted strip of each surface crosses the band). When
+    their RMS exceeds both ε/5 and 4 noise σ, the plane shrinks to the strongest sub-plane at ε/3 (RANSAC on
+    the same inliers, least-squares refit): one of the surfaces; the window's next plane finds the others.
+    Returns (split, n, d).
+    """
+    m = 0
+    ss = 0.0
+    for s in range(ns):
+        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
+        if abs(r) < eps:
+            ss += r * r
+            m += 1
+    if m < 24 or ss < m * (0.2 * eps) ** 2:  # residual RMS below ε/5: one surface (the bend test's gate)
+        return False, nx, ny, nz, d
+    m = 0
+    ss = 0.0
+    nn = 0
+    for s in range(ns):
+        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
+        if abs(r) < eps:
+            tx[m], ty[m], tz[m] = sx[s], sy[s], sz[s]
+            ss += r * r
+            m += 1
+            q = pix[s]
+            rr = q // W
+            cc = q - rr * W
+            if 0 < cc < W - 1:
+                v = _inv_d2(flat, rr * W + cc, 1)
+                if v >= 0:
+                    noise[nn] = v
+                    nn += 1
+            if 0 < rr < H - 1:
+                v = _inv_d2(flat, rr * W + cc, W)
+                if v >= 0:
+                    noise[nn] = v
+                    nn += 1
+    if nn < 12:
+        return False, nx, ny, nz, d
+    # robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step edges among them do not count, and a sensor
+    # that quantises depth (disparity steps: many zero differences) still shows its step
+    q = np.sort(noise[:nn])  # the upper quartile as np.percentile has it (linear), without its compile time
+    pos = 0.75 * (nn - 1)
+    lo = int(pos)
+    sigma = (q[lo] + (pos - lo) * (q[min(lo + 1, nn - 1)] - q[lo])) / (1.15 * np.sqrt(6.0))
+    if ss < m * (2.0 * sigma) ** 2:
+        return False, nx, ny, nz, d
+    ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, m, max_iter, state, ux, uy, uz, uidx)
+    if not ok:
+        return False, nx, ny, nz, d
+    cnt, ax, ay, az, ad = _inlier_fit_nb(tx, ty, tz, m, ax, ay, az, ad, eps / 3.0)
+    if cnt < 12:
+        return False, nx, ny, nz, d
+    if ax * nx + ay * ny + az * nz < 0:
+        ax, ay, az, ad = -ax, -ay, -az, -ad
+    # the same plane within its noise (a noisy surface, not two): no split. Another plane tilts by degrees
+    # (a strip of each surface) or, parallel, sits ε/3 or more away at the inliers' centre.
+    cx, cy, cz = np.mean(tx[:m]), np.mean(ty[:m]), np.mean(tz[:m])
+    if ax * nx + ay * ny + az * nz > cos_split and abs(ax * cx + ay * cy + az * cz + ad - (nx * cx + ny * cy + nz * cz + d)) < eps / 3.0:
+        return False, nx, ny, nz, d
+    if ad < 0:
+        ax, ay, az, ad = -ax, -ay, -az, -ad
+    return True, ax, ay, az, ad
+
+
+@njit(cache=True, error_model="numpy")
+def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, st, lbl, n_pl, out_pix, out_pts,
+                  out_plane, n_out, mom):
+    """One pass over the window's na points: the plane's inliers (|n·p + d| < ε) go out as plane n_pl (unless
+    its class is dropped; their moments Σp, Σppᵀ into mom), its noise tail (ε … tail) is left out, the rest is
+    compacted to the front. Returns (points kept, inliers, tail, n_out)."""
+    keep = 0
+    n_in = 0
+    n_tail = 0
+    mom[:] = 0.0
+    for a in range(na):
+        x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+        e = abs(nx * x + ny * y + nz * z + d)
+        if e >= eps and e < tail:  # the plane's noise tail: an outlier, but no seed for another plane
+            n_tail += 1
+            continue
+        if e < eps:
+            n_in += 1
+            if not dropped:
+                j = wr[a] * W + wc[a]
+                st[j] = 3  # a kept plane's point (back to 2 if the plane is rejected), for grow
+                lbl[j] = n_pl
+                out_pix[n_out, 0] = wr[a]
+                out_pix[n_out, 1] = wc[a]
+                out_pts[n_out, 0] = wx[a]
+                out_pts[n_out, 1] = wy[a]
+                out_pts[n_out, 2] = wz[a]
+                out_plane[n_out] = n_pl
+                n_out += 1
+                mom[0] += x
+                mom[1] += y
+                mom[2] += z
+                mom[3] += x * x
+                mom[4] += x * y
+                mom[5] += x * z
+                mom[6] += y * y
+                mom[7] += y * z
+                mom[8] += z * z
+        else:
+            wr[keep] = wr[a]
+            wc[keep] = wc[a]
+            wx[keep] = wx[a]
+            wy[keep] = wy[a]
+            wz[keep] = wz[a]
+            keep += 1
+    return keep, n_in, n_tail, n_out
+
+
+@njit(cache=True, error_model="numpy")
+def _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W):
+    """Put a plane's points (out[start:n_out]) back into the window after its kept points; returns the new count."""
+    k = keep
+    for a in range(start, n_out):
+        wr[k], wc[k] = out_pix[a, 0], out_pix[a, 1]
+        wx[k], wy[k], wz[k] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+        st[out_pix[a, 0] * W + out_pix[a, 1]] = 2
+        k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W):
+    """≤ 256 of a plane's points (out[start:n_out]), evenly strided, with their flat pixel indices."""
+    step = max(1, (n_out - start) // 256)
+    nb = 0
+    for a in range(start, n_out, step):
+        if nb == 256:
+            break
+        bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+        bidx[nb] = out_pix[a, 0] * W + out_pix[a, 1]
+        nb += 1
+    return nb
+
+
+@njit(cache=True, error_model="numpy")
+def _unmark_nb(st, W, out_pix, start, n_out):
+    """A rejected plane's points (out_pix[start:n_out]) are consumed outliers again, not plane points; returns start."""
+    for a in range(start, n_out):
+        st[out_pix[a, 0] * W + out_pix[a, 1]] = 2
+    return start
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _grow_take_nb(j, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane, n_out, mom):
+    """Pixel j joins plane k when within ε of it (appended to the output, its moments added): the new n_out."""
+    r = j // W
+    c = j - r * W
+    z = np.float64(flat[j])
+    x, y = z * tx[c], z * ty[r]
+    if abs(nx * x + ny * y + nz * z + d) >= eps:
+        return n_out
+    st[j] = 3
+    lbl[j] = k
+    out_pix[n_out, 0], out_pix[n_out, 1] = r, c
+    out_pts[n_out, 0], out_pts[n_out, 1], out_pts[n_out, 2] = x, y, z
+    out_plane[n_out] = k
+    mom[0] += x
+    mom[1] += y
+    mom[2] += z
+    mom[3] += x * x
+    mom[4] += x * y
+    mom[5] += x * z
+    mom[6] += y * y
+    mom[7] += y * z
+    mom[8] += z * z
+    return n_out + 1
+
+
+@njit(cache=True, error_model="numpy")
+def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack, pl_n, pl_d, pl_cnt, pl_mom, out_pix, out_pts, out_plane, n_out):
+    """Attach the eligible pixels never examined (the thesis stops at nRequired) to the plane of a 4-neighbour
+    when within ε of it, flood-filling from there: region growing on the organised image, one test per pixel
+    and neighbour. st: 1 unexamined, 3 a kept plane's point (its plane in lbl). Returns (n_out, pixels grown)."""
+    n0 = n_out
+    mom = np.zeros(9)
+    for i in range(H * W):  # in image order: a sequential pass beats the (unordered) candidate list
+        if st[i] != 1:
+            continue
+        r = i // W
+        c = i - r * W
+        k = -1
+        if c > 0 and st[i - 1] == 3:
+            k = lbl[i - 1]
+        elif c < W - 1 and st[i + 1] == 3:
+            k = lbl[i + 1]
+        elif r > 0 and st[i - W] == 3:
+            k = lbl[i - W]
+        elif r < H - 1 and st[i + W] == 3:
+            k = lbl[i + W]
+        if k < 0:
+            continue
+        nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
+        mom[:] = 0.0
+        start = n_out
+        n_out = _grow_take_nb(i, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane,
+                              n_out, mom)
+        top = 0
+        if n_out > start:
+            stack[0] = i
+            top = 1
+        while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
+            top -= 1
+            j = stack[top]
+            cj = j % W
+            for q in (j - 1, j + 1, j - W, j + W):
+                if q < 0 or q >= H * W or st[q] != 1 or (q == j - 1 and cj == 0) or (q == j + 1 and cj == W - 1):
+                    continue
+                m0 = n_out
+                n_out = _grow_take_nb(q, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
+                                      out_plane, n_out, mom)
+                if n_out > m0:
+                    stack[top] = q
+                    top += 1
+        pl_cnt[k] += n_out - start
+        for a in range(9):
+            pl_mom[k, a] += mom[a]
+    return n_out, n_out - n0
