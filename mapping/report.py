@@ -235,6 +235,12 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
     """The report as a list of blocks: ("h", level, text), ("p", text), ("table", header, rows), ("images", [(path,
     caption)]), ("warn", text)."""
     m = metrics
+    return (_intro_blocks(m) + _headline_blocks(m) + _map_blocks(out, m) + _comparison_blocks(out, m)
+            + _slam_blocks(m, traj_png) + _frame_blocks(m, frames_png) + _closing_blocks(m))
+
+
+def _intro_blocks(m: dict) -> list[tuple]:
+    """The title, a partial run's warning, and what was read."""
     B: list[tuple] = []
     log = m["log"]
     name = Path(log["path"]).name
@@ -257,6 +263,13 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
               + (f"Blueprint: {src['blueprint']}" + (f" ({src['blueprint_scale']:g} m per pixel)."
                                                         if src.get("blueprint_scale") else ".")
                  if src["blueprint"] else "No blueprint given.")))
+    return B
+
+
+def _headline_blocks(m: dict) -> list[tuple]:
+    """F1 against each reference (and of the walls seen), ATE, the real-time factor."""
+    B: list[tuple] = []
+    src = m["sources"]
     h = headline(m)
     B.append(("h", 2, "Headline"))
     t = m["timing"]
@@ -285,8 +298,12 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
     workers = _workers(m["table_5_5"]["workers"], src["kos"])
     B.append(("p", f"Whole run, up to this report: {_f(t.get('total_s'), 1)} s for {_f(t.get('log_s'), 1)} s of log = "
                    f"{_f(t.get('realtime_factor'), 1)}× real time ({workers})."))
+    return B
 
-    # maps
+
+def _map_blocks(out: Path, m: dict) -> list[tuple]:
+    """Every map with its trajectory."""
+    B: list[tuple] = []
     maps = m.get("maps", {})
     B.append(("h", 2, "Maps"))
     B.append(("p", "Each map is a log-odds occupancy grid (white free, black occupied, grey unknown) built from the "
@@ -299,8 +316,12 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                           + (" — saw no obstacle: every known cell drawn free (see Warnings)"
                              if maps[k].get("occupied_cells") == 0 and maps[k].get("known_cells") else ""))
                          for k in order]))
+    return B
 
-    # overlays
+
+def _comparison_blocks(out: Path, m: dict) -> list[tuple]:
+    """Overlays, and each comparison's scores, alignment and distances."""
+    B: list[tuple] = []
     comps = m.get("comparisons", {})
     if comps:
         B.append(("h", 2, "Overlays and comparison"))
@@ -328,8 +349,13 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                       + f"Wall distance A→B mean {_f(c['distance_a_to_b']['mean'])} m (median "
                         f"{_f(c['distance_a_to_b']['median'])}), B→A mean {_f(c['distance_b_to_a']['mean'])} m. "
                       + f"Free space agreement {_f(fr_['agreement'])}, IoU {_f(fr_['iou'])}."))
+    return B
 
-    # trajectories
+
+def _slam_blocks(m: dict, traj_png: Path | None) -> list[tuple]:
+    """Trajectories and each SLAM's statistics."""
+    B: list[tuple] = []
+    src = m["sources"]
     slam = m.get("slam", {})
     if slam:
         B.append(("h", 2, "Trajectories and SLAM"))
@@ -346,14 +372,19 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          consistency_text(s.get("consistency") or {}), _f(sum(v for v in sec.values()), 1)])
         B.append(("table", ["source", "scans", "keyframes", "loops", "heading priors", "ATE RMSE (m)", "ATE max (m)",
                             "front end alone (m)", "wheel odometry (m)", "self-consistency", "SLAM time (s)"], rows))
-        B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how far "
+        B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how "
                        "far one rigid move brings its scans onto the earlier ones' walls (median, and 90th percentile), and how "
                        "many loops the solution misses by more than twice their σ; a consistent map: a few mm to 2 cm "
                        "(backend/consistency.py)."))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))
+    return B
 
-    # Table 5.2 / 5.5
+
+def _frame_blocks(m: dict, frames_png: Path | None) -> list[tuple]:
+    """The thesis's Table 5.2 and 5.5 analogues."""
+    B: list[tuple] = []
+    src, t = m["sources"], m["timing"]
     if src["kos"] and m["frames"]["processed"]:
         t52 = m["table_5_2"]
         B.append(("h", 2, "Plane filtering per frame (thesis Table 5.2)"))
@@ -381,6 +412,13 @@ def _sections(out: Path, metrics: dict, traj_png: Path | None, frames_png: Path 
                          f"{_f(mem.get('peak_rss_mb_workers'), 0)} MB"
                          + "".join(f"; {n} SLAM process {_f(v, 0)} MB" for n, v in (mem.get("peak_rss_mb_slam") or {}).items())])
         B.append(("table", ["stage", "time"], rows))
+    return B
+
+
+def _closing_blocks(m: dict) -> list[tuple]:
+    """The run's warnings and the files it wrote."""
+    B: list[tuple] = []
+    src = m["sources"]
     warns = run_warnings(m)
     if warns:
         B.append(("h", 2, "Warnings"))
