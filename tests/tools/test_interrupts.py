@@ -14,9 +14,9 @@ from pathlib import Path
 
 import pytest
 
-from kosmap.mapping import outdir
-from kosmap.mapping.config import load_config
 from kosmap.mapping.build import BUILD_FILES, BuildInterrupted, build
+from kosmap.mapping.config import load_config
+from kosmap.mapping.runtime import outdir
 from kosmap.mapping.runtime.outdir import BACKUP_PREFIX, MANIFEST, STAGE_PREFIX, claim
 from kosmap.tools.cli import main
 from tests.frontend.synthetic_log import room_laser_log
@@ -145,7 +145,7 @@ def test_sigterm_while_the_files_are_moved_in_puts_the_previous_ones_back(laser_
 KILL_MID_MOVE = """
 import os, signal, sys
 from pathlib import Path
-from kosmap.mapping import outdir
+from kosmap.mapping.runtime import outdir
 out, k = Path(sys.argv[1]), int(sys.argv[2])
 stage = outdir.claim(out, tuple(sys.argv[3:]))
 for n in ("metrics.json", "map_laser.png", "map_new.png", "report.md"):
