@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from kosmap.frontend.fspf_kernels import (_classify_nb, _randint, _refit_nb, _uniform)
+from kosmap.frontend.fspf_kernels import _classify_nb, _randint, _refit_nb, _uniform, plane_through
 
 
 # ---- FSPF (Biswas & Veloso; thesis Alg. 1) -----------------------------------------------------------------------------
@@ -59,16 +59,9 @@ def fspf_kernel(depth, fx, fy, cx, cy, min_d, max_d, n_max, k_max, l, eta, size,
         x0, y0 = (c0 - cx) * z0 / fx, (r0 - cy) * z0 / fy
         x1, y1 = (c1 - cx) * z1 / fx, (r1 - cy) * z1 / fy
         x2, y2 = (c2 - cx) * z2 / fx, (r2 - cy) * z2 / fy
-        ux, uy, uz = x1 - x0, y1 - y0, z1 - z0
-        vx, vy, vz = x2 - x0, y2 - y0, z2 - z0
-        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if nn < 1e-12:
+        ok, nx, ny, nz, d = plane_through(x0, y0, z0, x1, y1, z1, x2, y2, z2)
+        if not ok:
             continue
-        nx /= nn
-        ny /= nn
-        nz /= nn
-        d = -(nx * x0 + ny * y0 + nz * z0)
         zbar = (z0 + z1 + z2) / 3.0
         ww = fx * size / zbar
         wh = fy * size / zbar

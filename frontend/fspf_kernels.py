@@ -46,6 +46,35 @@ def _uniform(state):
 
 # ---- shared numba pieces -------------------------------------------------------------------------------------------------
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _add_moments(mom, x, y, z):
+    """Add one point to a plane's moment sums: Σx, Σy, Σz, then Σxx, Σxy, Σxz, Σyy, Σyz, Σzz."""
+    mom[0] += x
+    mom[1] += y
+    mom[2] += z
+    mom[3] += x * x
+    mom[4] += x * y
+    mom[5] += x * z
+    mom[6] += y * y
+    mom[7] += y * z
+    mom[8] += z * z
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def plane_through(ax, ay, az, bx, by, bz, cx, cy, cz):
+    """(ok, nx, ny, nz, d): the unit-normal plane through three points (a float64); ok False when they are collinear."""
+    ux, uy, uz = bx - ax, by - ay, bz - az
+    vx, vy, vz = cx - ax, cy - ay, cz - az
+    nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+    nn = np.sqrt(nx * nx + ny * ny + nz * nz)
+    if nn < 1e-12:
+        return False, 0.0, 0.0, 0.0, 0.0
+    nx /= nn
+    ny /= nn
+    nz /= nn
+    return True, nx, ny, nz, -(nx * ax + ny * ay + nz * az)
+
+
 @njit(cache=True, error_model="numpy")
 def _classify_nb(nx, ny, nz, d, up, fwd, left, sl_min, sl_max, cam_h, ground_max_h):
     """planes.classify for one normal (thesis Alg. 6, plus slanted and raised); keep the two identical."""
@@ -173,17 +202,10 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz, s
         a = _randint(state, na)
         b = _randint(state, na)
         c = _randint(state, na)
-        ax, ay, az = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
-        ux, uy, uz = wx[b] - ax, wy[b] - ay, wz[b] - az
-        vx, vy, vz = wx[c] - ax, wy[c] - ay, wz[c] - az
-        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
-        nn = np.sqrt(nx * nx + ny * ny + nz * nz)
-        if nn < 1e-12:
+        ok, nx, ny, nz, d = plane_through(np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a]),
+                                          wx[b], wy[b], wz[b], wx[c], wy[c], wz[c])
+        if not ok:
             continue
-        nx /= nn
-        ny /= nn
-        nz /= nn
-        d = -(nx * ax + ny * ay + nz * az)
         cnt = 0
         fx32, fy32, fz32, fd32, fe32 = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d), np.float32(eps)
         for s in range(ns):  # float32 so the scoring loop vectorises twice as wide
@@ -419,15 +441,7 @@ def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, 
                 out_pts[n_out, 2] = wz[a]
                 out_plane[n_out] = n_pl
                 n_out += 1
-                mom[0] += x
-                mom[1] += y
-                mom[2] += z
-                mom[3] += x * x
-                mom[4] += x * y
-                mom[5] += x * z
-                mom[6] += y * y
-                mom[7] += y * z
-                mom[8] += z * z
+                _add_moments(mom, x, y, z)
         else:
             wr[keep] = wr[a]
             wc[keep] = wc[a]
@@ -486,15 +500,7 @@ def _grow_take_nb(j, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, o
     out_pix[n_out, 0], out_pix[n_out, 1] = r, c
     out_pts[n_out, 0], out_pts[n_out, 1], out_pts[n_out, 2] = x, y, z
     out_plane[n_out] = k
-    mom[0] += x
-    mom[1] += y
-    mom[2] += z
-    mom[3] += x * x
-    mom[4] += x * y
-    mom[5] += x * z
-    mom[6] += y * y
-    mom[7] += y * z
-    mom[8] += z * z
+    _add_moments(mom, x, y, z)
     return n_out + 1
 
 
