@@ -13,6 +13,7 @@ from kosmap.mapping.batch import TOL, LogRecord
 from kosmap.mapping.config import Config
 from kosmap.mapping.grid import OccupancyGrid
 from kosmap.mapping.jsonsafe import json_safe
+from kosmap.mapping.reportdoc import to_html, to_markdown
 
 MERGED, CHANGES = "map_merged", "changes"
 BATCH_FILES = ("batch.json", "batch.md", "batch.html", f"{MERGED}.png", f"{MERGED}.pgm", f"{MERGED}.yaml",
@@ -142,11 +143,9 @@ def _blocks(out: Path, doc: dict) -> list[tuple]:
 
 def write_batch_report(out: Path, doc: dict) -> None:
     """batch.json (everything), batch.md and batch.html (the table, the merged map and the changes)."""
-    from kosmap.mapping.report import _html, _md
-
     blocks = _blocks(out, doc)
-    for name, text in (("batch.json", json.dumps(json_safe(doc), indent=1) + "\n"), ("batch.md", _md(blocks, out)),
-                       ("batch.html", _html(blocks))):
+    for name, text in (("batch.json", json.dumps(json_safe(doc), indent=1) + "\n"), ("batch.md", to_markdown(blocks)),
+                       ("batch.html", to_html(blocks))):
         tmp = out / (name + ".partial")
         tmp.write_text(text)
         os.replace(tmp, out / name)

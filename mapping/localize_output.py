@@ -14,6 +14,7 @@ import numpy as np
 from kosmap.frontend import se2
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.localize import LOST, STATUS_NAMES, TRACKING, LocalizeResult
+from kosmap.mapping.reportdoc import to_html, to_markdown
 
 LOCALIZE_FILES = ("trajectory.tum", "confidence.csv", "metrics.json", "report.md", "report.html", "localization.png",
                   "confidence.png", "kosmap.mcap", "config.toml")
@@ -176,8 +177,6 @@ def _fmt(v, unit="", digits=3) -> str:
 
 
 def report(out: Path, m: dict, traj: Path, conf: Path) -> None:
-    from kosmap.mapping.report import _html, _md
-
     run, loc = m["run"], m["localization"]
     blocks: list[tuple] = [("h", 1, "kosmap localize"),
                            ("p", f"{run['scans']} {run['source'].upper()} scans over {run['duration_s']:.1f} s of log "
@@ -211,7 +210,7 @@ def report(out: Path, m: dict, traj: Path, conf: Path) -> None:
                ("images", [(traj, "The poses over the map, by status (searching, tracking, lost)"),
                            (conf, "Confidence over time: the particles' spread, the match score, augmented MCL's "
                                   "w_fast/w_slow" + (", the error against the truth" if tr else ""))])]
-    for name, text in (("report.md", _md(blocks, out)), ("report.html", _html(blocks))):
+    for name, text in (("report.md", to_markdown(blocks)), ("report.html", to_html(blocks))):
         p = out / name
         tmp = p.with_name(p.name + ".partial")
         tmp.write_text(text)
