@@ -26,7 +26,8 @@ from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.mapio import read_blueprint
 from kosmap.mapping.report import frames_figure, trajectory_figure, write_report
 from kosmap.mapping.runtime.framepool import FramePool, check_workers, default_workers, executor_peak_rss_mb, peak_rss_mb
-from kosmap.mapping.runtime.outdir import SPILL_PREFIX, check_out, claim, commit, discard, holds_complete_run
+from kosmap.mapping.runtime.outdir import (SPILL_PREFIX, abandon, check_out, claim, commit, discard,
+                                           holds_complete_run)
 from kosmap.mapping.runtime.slamproc import RemoteFeed
 
 OUTPUTS = ("metrics.json", "report.html", "report.md", "map_*.png", "map_*.pgm", "map_*.yaml", "overlay_*.png",
@@ -80,13 +81,14 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
     bp_files = () if blueprint is None else (Path(blueprint), *(Path(blueprint).with_suffix(x) for x in (".png", ".pgm")))
     # a file of the user's, or one this run reads, under one of our names stops here; the run writes into a staging
     # folder whose files replace the previous build's only when it completes (mapping/runtime/outdir.py)
-    stage = claim(out, BUILD_FILES, inputs=(log, *bp_files, *reads))
-    final_out, out = out, stage.dir
+    final_out, stage = out, None
     warnings: list[str] = []
     pool: FramePool | None = None
     feeds: dict = {}
     spill_dir = None
     try:
+        stage = claim(final_out, BUILD_FILES, inputs=(log, *bp_files, *reads))
+        out = stage.dir
         spill_dir = Path(tempfile.mkdtemp(prefix=SPILL_PREFIX, dir=out))
         files: dict[str, Path] = {"config": write_config(cfg, out / "config.toml")}
         # One set of worker processes for the whole build, forked now while this process is small: the frames in
@@ -131,7 +133,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
                              "peak_rss_mb_slam": {n: f.peak_rss_mb for n, f in feeds.items() if isinstance(f, RemoteFeed)}}
         write_metrics_and_report(out, metrics, files, read, t_start, cpu_start, figures if report else None)
     except BaseException:  # failed, or stopped by a second Ctrl-C or SIGTERM: the previous build stays as it was
-        discard(stage)
+        abandon(final_out, stage)
         raise
     finally:
         for feed in feeds.values():

@@ -185,16 +185,27 @@ def discard(stage: Stage) -> None:
     _remove_made(stage.out, stage.made)
 
 
+def abandon(out: Path, stage: Stage | None) -> None:
+    """`discard` for a run stopped anywhere from its `claim` on: with no `stage` yet (interrupted inside `claim` or
+    before its result was kept), this process's staging folders in `out` go."""
+    if stage is not None:
+        discard(stage)
+        return
+    for p in Path(out).glob(f"{STAGE_PREFIX}{os.getpid()}-*"):
+        shutil.rmtree(p, ignore_errors=True)
+
+
 @contextmanager
 def writing(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str = "build") -> Iterator[Path]:
     """A run of `command` writing its files into the staging folder this yields; they replace the previous run's
     in `out` when the body ends, and are removed when it fails or is interrupted."""
-    stage = claim(out, patterns, inputs, command)
+    stage = None
     try:
+        stage = claim(out, patterns, inputs, command)
         yield stage.dir
         commit(stage)
     except BaseException:
-        discard(stage)
+        abandon(out, stage)
         raise
 
 

@@ -75,6 +75,34 @@ def test_a_run_replaces_the_previous_builds_files_only_when_it_commits(tmp_path)
     assert json.loads((tmp_path / MANIFEST).read_text()) == {"kosmap": "build", "files": ["map_kos_obstacle.png", "metrics.json"]}
 
 
+@pytest.mark.parametrize("entry", ["writing", "build"])
+def test_ctrl_c_right_after_the_staging_folder_is_made_leaves_no_trace(entry, laser_log, tmp_path, monkeypatch):
+    """A Ctrl-C that lands in `claim` after the staging folder exists, before the run holds it: the folder goes,
+    the previous build's files are as they were."""
+    import tempfile
+
+    from kosmap.mapping.runtime import outdir
+
+    out = tmp_path / "out"
+    build(laser_log, out, load_config(None, SETS), workers=0, report=False)
+    before = _snapshot(out)
+    made, mkdtemp = [], tempfile.mkdtemp
+
+    def mkdtemp_then_interrupted(**kw):
+        made.append(mkdtemp(**kw))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outdir.tempfile, "mkdtemp", mkdtemp_then_interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        if entry == "build":
+            build(laser_log, out, load_config(None, SETS), workers=0, report=False)
+        else:
+            with outdir.writing(out, BUILD_FILES):
+                pass
+    assert made and made[0].startswith(str(out / ".kosmap-staging-"))  # the folder was made, then removed
+    assert [p.name for p in out.iterdir() if p.is_dir()] == [] and _snapshot(out) == before
+
+
 def test_a_folder_of_a_build_before_manifests_is_still_a_builds(tmp_path):
     (tmp_path / "metrics.json").write_text(json.dumps({"kosmap": "build"}))
     (tmp_path / "trajectory_kos.tum").write_text("")
