@@ -101,6 +101,7 @@ def one(log: str, out: str, workers: int, blueprint: str | None, sets: list[str]
     m = res.metrics
     # the whole call, the report included (metrics.json's total_s stops where the report begins: what it shows)
     m["timing"]["realtime_factor"] = m["timing"]["log_s"] / wall if wall > 0 else None
+    m["log"]["path"] = Path(m["log"]["path"]).name  # the cached log's name, not this machine's path to it
     print(json.dumps({"wall_s": wall, "cpu_main_s": me.ru_utime + me.ru_stime, "cpu_workers_s": kids.ru_utime + kids.ru_stime,
                       "maxrss_main_mb": me.ru_maxrss / 1024, "maxrss_worker_mb": m["memory"]["peak_rss_mb_workers"],
                       "maxrss_slam_mb": max((m["memory"].get("peak_rss_mb_slam") or {}).values(), default=None),
