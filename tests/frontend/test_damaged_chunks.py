@@ -179,3 +179,29 @@ def test_damage_is_counted_once_over_several_reads(tmp_path):
     per_chunk = [w for w in log.warnings if "is damaged" in w]
     assert len(per_chunk) == 5  # the first five one by one, then one warning counting them all
     assert log.warnings[-1] == "bad.bag: in all, 7 damaged chunks were skipped"
+
+
+def test_info_check_finds_the_damaged_chunk_the_index_hides(tmp_path, capsys):
+    """`kosmap info` reads only the index, which a damaged chunk does not touch; `--check` reads the messages and
+    names the chunk, with the count of messages read."""
+    import json
+
+    whole = tmp_path / "whole.bag"
+    recs = laser_bag(whole)
+    data = whole.read_bytes()
+    pos, start, length = bag_chunks(data)[2]
+    lost = chunk_stamps(whole, pos)
+    bad = tmp_path / "bad.bag"
+    bad.write_bytes(flip(data, start + length // 2))
+    assert main(["info", str(bad), "--json"]) == 0
+    assert "check" not in json.loads(capsys.readouterr().out)
+    assert main(["info", str(whole), "--check", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["check"] == {"messages_read": len(recs), "messages_indexed": len(recs),
+                                                             "problems": []}
+    assert main(["info", str(bad), "--check", "--json"]) == 0
+    check = json.loads(capsys.readouterr().out)["check"]
+    assert check["messages_read"] == len(recs) - len(lost) and check["messages_indexed"] == len(recs)
+    assert len(check["problems"]) == 1 and f"the chunk at byte {pos} is damaged" in check["problems"][0]
+    assert main(["info", str(bad), "--check"]) == 0
+    out = capsys.readouterr().out
+    assert f"damaged: {len(recs) - len(lost)} of {len(recs)} indexed messages read" in out

@@ -55,6 +55,15 @@ def log_summary(path: Path, cfg) -> dict:
         }
 
 
+def check_log(path: Path, cfg) -> dict:
+    """Read every message of the log once (what a build would meet): how many were read, and the damage found on
+    the way (damaged chunks with their time ranges, undecodable messages), which the index alone does not show."""
+    with open_log(path, cfg.topics.on_damage) as log:
+        expected = log.info().message_count
+        read = sum(1 for _ in log.read())
+        return {"messages_read": read, "messages_indexed": expected, "problems": list(log.warnings)}
+
+
 def _print(s: dict) -> None:
     from rich.console import Console
     from rich.markup import escape
@@ -89,6 +98,12 @@ def _print(s: dict) -> None:
         con.print(f"[yellow]note[/]: {escape(n)}")
     for w in s["warnings"]:
         con.print(f"[yellow]warning[/]: {escape(w)}")
+    if "check" in s:
+        c = s["check"]
+        state = "[red]damaged[/]" if c["problems"] else "[green]read whole[/]"
+        con.print(f"[bold]check[/]:     {state}: {c['messages_read']} of {c['messages_indexed']} indexed messages read")
+        for w in c["problems"]:
+            con.print(f"  [red]problem[/]: {escape(w)}")
 
 
 def register(app: typer.Typer) -> None:
@@ -96,6 +111,8 @@ def register(app: typer.Typer) -> None:
     def info(
         log: Annotated[Path, typer.Argument(help="Log file: .mcap (ROS 2), .bag (ROS 1) or .clf (CARMEN).")],
         as_json: Annotated[bool, typer.Option("--json", help="Print JSON for scripts.")] = False,
+        check: Annotated[bool, typer.Option("--check", help="Also read every message once (as long as a read "
+                                            "pass of a build) to find damaged chunks the index does not show.")] = False,
         config: O.ConfigOpt = None, set_: O.SetOpt = None, depth_topic: O.DepthTopicOpt = None,
         info_topic: O.InfoTopicOpt = None, scan_topic: O.ScanTopicOpt = None, odom_topic: O.OdomTopicOpt = None,
         imu_topic: O.ImuTopicOpt = None,
@@ -103,6 +120,8 @@ def register(app: typer.Typer) -> None:
         """Show a log's format, duration, topics with counts and rates, and the topics kosmap will use."""
         cfg = O.make_config(config, set_, depth_topic, info_topic, scan_topic, odom_topic, imu_topic)
         summary = log_summary(log, cfg)
+        if check:
+            summary["check"] = check_log(log, cfg)
         if as_json:
             print(json.dumps(summary, indent=2))
         else:
