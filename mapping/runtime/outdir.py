@@ -125,7 +125,7 @@ def claim(out: Path, patterns: tuple[str, ...], inputs: tuple = (), command: str
         for pat in patterns:  # half-written files of a build of an earlier kosmap that wrote in place
             for p in out.glob(pat + ".partial"):
                 p.unlink(missing_ok=True)
-        present = sorted({p.name for pat in patterns for p in out.glob(pat) if p.is_file() or p.is_symlink()})
+        present = _matching(out, patterns, links=True)
         here = out.resolve()
         for x in inputs:
             if x is not None and Path(x).resolve().parent == here and Path(x).name in present:
@@ -157,7 +157,7 @@ def commit(stage: Stage, partial: bool = False) -> Path:
     it is done; one that came meanwhile undoes it (the run was stopped: the previous files stay). Returns the
     manifest. `partial`: an interrupted run's outputs (a later run never keeps them in preference to its own)."""
     out = stage.out
-    new = sorted({p.name for pat in stage.patterns for p in stage.dir.glob(pat) if p.is_file()})
+    new = _matching(stage.dir, stage.patterns)
     backup = stage.dir.with_name(BACKUP_PREFIX + stage.dir.name.removeprefix(STAGE_PREFIX))
     final = {"kosmap": stage.command, "files": new, **({"partial": True} if partial else {})}
     with _signals_held() as held:
@@ -166,9 +166,9 @@ def commit(stage: Stage, partial: bool = False) -> Path:
                               "files": new, "replaces": stage.replaces, "previous": stage.previous})
         for n in stage.replaces:
             if (out / n).exists() or (out / n).is_symlink():
-                os.replace(out / n, backup / n)
+                _move(out / n, backup / n)
         for n in new:
-            os.replace(stage.dir / n, out / n)
+            _move(stage.dir / n, out / n)
         if held:  # stopped while moving: the previous run's files go back
             _undo(out, _manifest(out))
         else:
@@ -251,8 +251,9 @@ def _undo(out: Path, doc: dict) -> None:
         if n not in old:
             (out / n).unlink(missing_ok=True)  # a new file: no older one of that name to keep
     if backup.is_dir():
-        for p in backup.iterdir():
-            os.replace(p, out / p.name)
+        for p in sorted(backup.rglob("*")):
+            if not p.is_dir():
+                _move(p, out / p.relative_to(backup))
     prev = doc.get("previous")
     if isinstance(prev, str):
         _write_text(out / MANIFEST, prev)
@@ -260,6 +261,19 @@ def _undo(out: Path, doc: dict) -> None:
         (out / MANIFEST).unlink(missing_ok=True)
     shutil.rmtree(backup, ignore_errors=True)
     shutil.rmtree(out / doc["committing"], ignore_errors=True)
+
+
+def _matching(folder: Path, patterns: tuple[str, ...], links: bool = False) -> list[str]:
+    """The files in `folder` that match `patterns`, as paths relative to it ("stats.csv", "planes/000000.npz": a
+    pattern may name a subfolder's files)."""
+    return sorted({p.relative_to(folder).as_posix() for pat in patterns for p in folder.glob(pat)
+                   if p.is_file() or (links and p.is_symlink())})
+
+
+def _move(src: Path, dest: Path) -> None:
+    """Move one file, making the subfolder it goes into when the pattern named one."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    os.replace(src, dest)
 
 
 def _alive(name: str) -> bool:

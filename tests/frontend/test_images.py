@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from kosmap.frontend.errors import LogError
 from kosmap.frontend.logs.images import ImageFolder, read_camera_file
 from kosmap.frontend.records import CameraModel, DepthFrame
-from kosmap.tools.commands.planes import normal_quaternions
+from kosmap.mapping.planes.outputs import normal_quaternions
 
 
 def test_camera_files(tmp_path):

@@ -43,7 +43,7 @@ def _auto_mount(log: Path, cfg, quiet: bool):
     mount calibration, docs/planes.md) replace the given mount for this build."""
     from dataclasses import replace
 
-    from kosmap.tools.commands.planes import estimate_mount
+    from kosmap.mapping.planes.classes import estimate_mount
 
     est, n = estimate_mount(log, cfg)
     if est is None:
