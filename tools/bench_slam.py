@@ -5,7 +5,9 @@ beside the published Cartographer and Graph Mapping numbers and kiss-icp measure
 
 Per log: raw wheel odometry; kiss-icp with the odometry increment as its guess (front end only, as
 docs/dependencies.md measured it); our scan-to-submap front end alone; the full system (front end + loop closure +
-pose graph). One parameter set, the defaults of [odometry] and [graph], for every log. Wall-clock and
+pose graph); and the peer, yag-slam (OpenKarto's matcher and graph, tools/peer_yag.py; the `bench` extra), fed the
+same scans and odometry, scored by the same metric and timed the same way, with the ratios to ours printed (a row
+saying it is not installed when it is not; `--no-peer` skips it). One parameter set, the defaults of [odometry] and [graph], for every log. Wall-clock and
 CPU seconds of the whole run (reading the log included). Writes docs/benchmarks.md and docs/bench/slam.json.
 `--seconds` cuts each log to its first S seconds (profiling slices; not comparable with the published numbers).
 Each timed run follows a 10 s warm-up run in the same process (numba loads its cached machine code once).
@@ -28,6 +30,7 @@ from kosmap.frontend import se2
 from kosmap.mapping.config import Config, load_config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.slam import evaluate, run_slam
+from kosmap.tools import peer_yag
 from kosmap.tools.data import REPO, data_dir
 
 LOGS = {
@@ -106,7 +109,30 @@ def _rel(stamps, poses, rel):
     return {"all": relations_metric(stamps, poses, rel, max_missing=1.0), "split": relations_metric_split(stamps, poses, rel)}
 
 
-def bench_log(name: str, seconds: float | None, baselines: bool) -> dict:
+def bench_peer(name: str, path: Path, rel: np.ndarray, seconds: float | None, ours: dict) -> dict:
+    """yag-slam on the log (after a 10 s warm-up, as ours), its relations, time and ratios to ours; or why not."""
+    why = peer_yag.unavailable()
+    if why is None:
+        try:
+            peer_yag.run_peer(path, max_seconds=10.0)  # warm-up: yag-slam's numba functions load once per process
+            p = peer_yag.run_peer(path, max_seconds=seconds)
+        except Exception as e:  # the peer's own failure is a row of the table, not the end of the benchmark
+            why = f"yag-slam failed: {type(e).__name__}: {e}"
+    if why is not None:
+        print(f"{name}: peer unavailable: {why}", flush=True)
+        return {"unavailable": why}
+    m = _rel(p.stamps, p.poses, rel)
+    err = m["all"]["abs_trans"]["mean"]
+    ratio = {"abs_trans": err / ours["relations"]["abs_trans"]["mean"], "wall": p.wall_s / ours["wall_s"],
+             "cpu": p.cpu_s / ours["cpu_s"]}
+    print(f"{name}: yag-slam {err:.4f} m in {p.wall_s:.1f} s wall / {p.cpu_s:.1f} s cpu ({p.duration_s / p.wall_s:.0f}× "
+          f"real time); yag-slam ÷ kosmap: error ×{ratio['abs_trans']:.2f}, wall ×{ratio['wall']:.2f}, "
+          f"cpu ×{ratio['cpu']:.2f}", flush=True)
+    return {**m, "wall_s": p.wall_s, "cpu_s": p.cpu_s, "duration_s": p.duration_s, "rt_wall": p.duration_s / p.wall_s,
+            "keyframes": p.keyframes, "loops": p.loops, "consistency": p.consistency, "ratio": ratio}
+
+
+def bench_log(name: str, seconds: float | None, baselines: bool, peer: bool = True) -> dict:
     lp, rp, title = LOGS[name]
     path, relp = data_dir() / lp, data_dir() / rp
     rel = read_relations(relp)
@@ -128,6 +154,8 @@ def bench_log(name: str, seconds: float | None, baselines: bool) -> dict:
     # which frame do the relations relate? the laser's (headline), or one a few cm ahead / behind it
     out["frame_check"] = {f"{dx:+.2f}": relations_metric(r.stamps, se2.compose(r.sensor_poses(), np.repeat([[dx, 0.0, 0.0]], len(r.poses), 0)),
                                                          rel, max_missing=1.0)["abs_trans"]["mean"] for dx in (-0.04, 0.0, 0.04)}
+    if peer:
+        out["yag_slam"] = bench_peer(name, path, rel, seconds, out["ours"])
     odo = r.odom_poses
     if np.isfinite(odo).all():
         out["odometry"] = _rel(r.stamps, se2.compose(odo, mount), rel)
@@ -152,6 +180,40 @@ def _pm(v, nd):
     return f"{v[0]:.{nd}f} ± {v[1]:.{nd}f}"
 
 
+def peer_section(res: dict) -> list[str]:
+    """The summary of the peer beside ours: errors, speeds and their ratios per log."""
+    rows = [(r["log"], r["ours"], r["yag_slam"]) for r in res.values() if "yag_slam" in r]
+    if not rows:
+        return []
+    L = ["## Peer: yag-slam (OpenKarto)", "",
+         "yag-slam (PyPI `yag-slam`: OpenKarto's correlative scan matcher in C++, its graph in Python, sparse bundle "
+         "adjustment as the solver; `pip install -e .[bench]`) runs in the same benchmark run on the same scans, with "
+         "the wheel odometry at each scan's stamp by our rule and the laser's mount from the log (`tools/peer_yag.py`). "
+         "Its settings are its ROS node's defaults for every log (sequential search ±0.15 m at 1 cm, ±20°; loop search "
+         "4 m at 5 cm; loop responses 0.6 / 0.7) with OpenKarto's keyframe spacing, 0.2 m or 10° (the node's own 0.5 m "
+         "/ 0.5 rad measured worse on Intel and FR079, better on CSAIL); each scan between its keyframes is posed "
+         "by its keyframe's optimised pose and the odometry since, as its map→odom correction does. Scored by the same "
+         "relations in the laser's frame; timed the same way (reading the log included, after a 10 s warm-up). "
+         "Ratios are yag-slam ÷ kosmap: an error ratio above 1 means kosmap is more accurate, a time ratio above 1 "
+         "that kosmap is faster.", "",
+         "| log | kosmap abs trans (m) | yag-slam abs trans (m) | error ratio | kosmap real-time (wall) | yag-slam real-time "
+         "(wall) | time ratio wall / CPU | yag-slam keyframes, loops | yag-slam revisits off, median / 90 % (m) |",
+         "|---|---|---|---|---|---|---|---|---|"]
+    for log, o, y in rows:
+        if "unavailable" in y:
+            L.append(f"| {log} | {o['relations']['abs_trans']['mean']:.4f} | peer unavailable: {y['unavailable']} | | | | | | |")
+            continue
+        c = y.get("consistency") or {}
+        off = "no revisits" if c.get("median_m") is None or c["median_m"] != c["median_m"] else \
+            f"{c['median_m']:.3f} / {c['p90_m']:.3f}"
+        tr = (f"×{y['ratio']['wall']:.2f} / ×{y['ratio']['cpu']:.2f}" if "wall" in y["ratio"]
+              else "– (yag-slam from the previous run)")
+        L.append(f"| {log} | {o['relations']['abs_trans']['mean']:.4f} | {y['all']['abs_trans']['mean']:.4f} | "
+                 f"**×{y['ratio']['abs_trans']:.1f}** | {o['rt_wall']:.0f}× | {y['rt_wall']:.0f}× | "
+                 f"{tr} | {y['keyframes']}, {y['loops']} | {off} |")
+    return L + [""]
+
+
 def markdown(res: dict, meta: dict) -> str:
     L = ["# Benchmarks: 2D laser SLAM on the public relation logs", "",
          f"Generated by `tools/bench_slam.py` on {meta['date']} ({meta['machine']}, {meta['cores']} cores, load average "
@@ -173,6 +235,12 @@ def markdown(res: dict, meta: dict) -> str:
         L.append("| **kosmap (ours)** | " + " | ".join(f"**{_pm(o['relations'][k], nd)}**" for k, _, nd in METRICS) + " |")
         L.append("| Cartographer (published) | " + " | ".join(_pm(pub["cartographer"][k], nd) for k, _, nd in METRICS) + " |")
         L.append("| Graph Mapping (published) | " + " | ".join(_pm(pub["graph_mapping"][k], nd) for k, _, nd in METRICS) + " |")
+        y = r.get("yag_slam")
+        if y and "unavailable" in y:
+            L.append(f"| yag-slam (OpenKarto) | peer unavailable: {y['unavailable']} |" + " |" * (len(METRICS) - 1))
+        elif y:
+            L.append(f"| yag-slam (OpenKarto, same run{'; the previous run' if y.get('previous_run') else ''}) | "
+                     + " | ".join(_pm(y["all"][k], nd) for k, _, nd in METRICS) + " |")
         if "frontend_only" in r:
             L.append("| our front end alone (no loops) | " + " | ".join(_pm(r["frontend_only"]["all"][k], nd) for k, _, nd in METRICS) + " |")
         if "kiss_icp_odom" in r:
@@ -185,6 +253,8 @@ def markdown(res: dict, meta: dict) -> str:
         L += ["", "| time | data (s) | wall clock (s) | CPU (s) | real-time factor (wall) |", "|---|---|---|---|---|",
               f"| kosmap | {o['duration_s']:.0f} | {o['wall_s']:.1f} | {o['cpu_s']:.1f} | **{o['rt_wall']:.0f}×** |",
               f"| Cartographer (published) | {dur} | {cwall} | – | {dur / cwall:.0f}× |"]
+        if y and "unavailable" not in y:
+            L.append(f"| yag-slam (OpenKarto) | {y['duration_s']:.0f} | {y['wall_s']:.1f} | {y['cpu_s']:.1f} | {y['rt_wall']:.0f}× |")
         if "kiss_icp_odom" in r:
             k = r["kiss_icp_odom"]
             L.append(f"| kiss-icp + odometry (front end only) | {o['duration_s']:.0f} | {k['wall_s']:.1f} | {k['cpu_s']:.1f} | {k['rt_wall']:.0f}× |")
@@ -205,6 +275,7 @@ def markdown(res: dict, meta: dict) -> str:
             L += ["", f"Relations shorter than 30 s (local accuracy): {_pm(sp['short']['abs_trans'], 4)} m ({sp['short']['n']}); "
                       f"30 s and longer (loops): {_pm(sp['long']['abs_trans'], 4)} m ({sp['long']['n']})."]
         L.append("")
+    L += peer_section(res)
     checks = "; ".join(f"{r['log']}: " + ", ".join(f"{k} m → {v:.4f}" for k, v in r["frame_check"].items())
                        for r in res.values() if "frame_check" in r)
     L += ["## Notes", "",
@@ -238,12 +309,13 @@ def main() -> None:
     ap.add_argument("--logs", nargs="+", default=list(LOGS), choices=list(LOGS))
     ap.add_argument("--seconds", type=float, default=None, help="only the first S seconds of each log")
     ap.add_argument("--no-baselines", action="store_true", help="skip kiss-icp and the front-end-only run")
+    ap.add_argument("--no-peer", action="store_true", help="skip yag-slam (its rows of the last full run stay, marked)")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
     a = ap.parse_args()
     import tomli_w
 
     load_before = " ".join(f"{v:.2f}" for v in os.getloadavg())
-    res = {n: bench_log(n, a.seconds, not a.no_baselines) for n in a.logs}
+    res = {n: bench_log(n, a.seconds, not a.no_baselines, not a.no_peer) for n in a.logs}
     old = a.out / "bench" / "slam.json"
     if a.no_baselines and a.seconds is None and old.is_file():
         # kiss-icp does not depend on our settings: its rows of the last full run stay (marked as such)
@@ -251,6 +323,13 @@ def main() -> None:
         for n, r in res.items():
             if "kiss_icp_odom" in prev.get(n, {}):
                 r["kiss_icp_odom"] = {**prev[n]["kiss_icp_odom"], "previous_run": True}
+    if a.no_peer and a.seconds is None and old.is_file():
+        prev = json.loads(old.read_text()).get("results", {})
+        for n, r in res.items():
+            y = prev.get(n, {}).get("yag_slam", {})
+            if "all" in y:  # its error against ours now; its times were not measured beside ours: no time ratio
+                ratio = {"abs_trans": y["all"]["abs_trans"]["mean"] / r["ours"]["relations"]["abs_trans"]["mean"]}
+                r["yag_slam"] = {**y, "ratio": ratio, "previous_run": True}
     cfg = Config()
     params = tomli_w.dumps({"odometry": dataclasses.asdict(cfg.odometry), "graph": dataclasses.asdict(cfg.graph)})
     meta = {"date": time.strftime("%Y-%m-%d %H:%M"), "machine": platform.processor() or platform.machine(),
