@@ -48,7 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from kosmap.frontend.camera import DepthConfig, camera_axes
-from kosmap.frontend.fspf_biswas import fspf_kernel
+from kosmap.frontend.fspf_biswas import Params as BiswasParams, fspf_kernel
 from kosmap.frontend.fspf_kernels import classify_many, rng_state
 from kosmap.frontend.fspf_numpy import fspf_numpy, fspf_plus_numpy
 from kosmap.frontend.fspf_plus import Params, fspf_plus_kernel
@@ -274,11 +274,14 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     pl_n, pl_d = np.empty((p_cap, 3)), np.empty(p_cap)
     pl_cls, pl_cnt = np.empty(p_cap, np.int8), np.empty(p_cap, np.int64)
     stats = np.zeros(6, np.int64)
-    n, p = fspf_kernel(depth, cam.fx, cam.fy, cam.cx, cam.cy, dcfg.min_depth, dcfg.max_depth, cfg.fspf_max_points,
-                    cfg.fspf_max_neighborhoods, l, cfg.fspf_window_px, cfg.delta_m, cfg.fspf_error_m,
-                    cfg.fspf_min_inlier_fraction, *classes_of.args(), _drop_mask(cfg),
-                    rng_state(seed), _workspace(H * W, 1)["st"], out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls,
-                    pl_cnt, stats)
+    prm = BiswasParams(float(cam.fx), float(cam.fy), float(cam.cx), float(cam.cy), float(dcfg.min_depth),
+                       float(dcfg.max_depth), int(cfg.fspf_max_points), int(cfg.fspf_max_neighborhoods), int(l),
+                       int(cfg.fspf_window_px), float(cfg.delta_m), float(cfg.fspf_error_m),
+                       float(cfg.fspf_min_inlier_fraction), float(cfg.slanted_min_deg), float(cfg.slanted_max_deg),
+                       float(classes_of.cam_h), float(cfg.ground_max_height))
+    out = (out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt)
+    n, p = fspf_kernel(depth, prm, (classes_of.up, classes_of.fwd, classes_of.left), _drop_mask(cfg), rng_state(seed),
+                       _workspace(H * W, 1)["st"], out, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats)), (H, W), "fspf")
     return _finish(planes, cfg, classes_of, t0)
