@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import math
 import threading
+from collections import namedtuple
 from dataclasses import dataclass
 from functools import lru_cache
 
@@ -216,49 +217,65 @@ def _view_centre(m: np.ndarray, view_half: float) -> tuple[float, float]:
     return float(math.atan2(axis[1], axis[0])), float(min(view_half + math.radians(10.0), math.radians(85.0)))
 
 
+# The kernels' parameters, one record each: the bearing grid and range limits of `add` (PointGrid), and the
+# per-pixel tables, bearing grid and depth and range limits of `add_depth` (ImageGrid)
+PointGrid = namedtuple("PointGrid", "cos_c sin_c t_min scale first tan_edges bin0 n full_circle rmin2 rmax2")
+ImageGrid = namedtuple("ImageGrid", "ax ay az bx by bz tx ty tz a0 inv_inc n_local bin0 n full_circle dmin dmax rmin2 "
+                                    "rmax2")
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _to_base(R, t, px, py, pz):  # pragma: no cover - compiled
+    """A point of the camera's frame in base_link (the mount R, t)."""
+    x = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
+    y = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
+    z = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
+    return x, y, z
+
+
+@njit(cache=True, error_model="numpy")
+def _bearing_bin(x, y, g):  # pragma: no cover - compiled
+    """The global bearing bin of (x, y) from the tangent table of _BearingTable; −1 outside the grid or behind."""
+    xc = x * g.cos_c + y * g.sin_c
+    if xc <= 0.0:
+        return -1
+    tt = (y * g.cos_c - x * g.sin_c) / xc
+    fj = (tt - g.t_min) * g.scale
+    if not (fj >= 0.0 and fj < g.first.shape[0]):  # (int() truncates towards 0: test before, or bin 0 takes 1/8 bin too much)
+        return -1
+    k = g.first[int(fj)]
+    while k + 1 < g.tan_edges.shape[0] - 1 and tt >= g.tan_edges[k + 1]:
+        k += 1
+    b = g.bin0 + k
+    if g.full_circle:
+        return b % g.n
+    return b if 0 <= b < g.n else -1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _keep_nearest(out, lo, hi, z, b, r):  # pragma: no cover - compiled
+    """scan[b] ← min(scan[b], r) for every level whose band holds the height z."""
+    for lev in range(lo.shape[0]):
+        if z >= lo[lev] and z <= hi[lev] and r < out[lev, b]:
+            out[lev, b] = r
+
+
 @njit(cache=True)
-def _accumulate(pts, R, t, lo, hi, cos_c, sin_c, t_min, scale, first, tan_edges, bin0, n, full_circle, rmin, rmax,
-                out):  # pragma: no cover - compiled
-    """Thesis Alg. 7 for all levels in one pass: transform, height test, bearing bin, nearest range."""
-    n_lev = lo.shape[0]
+def _accumulate(pts, R, t, lo, hi, g, out):  # pragma: no cover - compiled
+    """Thesis Alg. 7 for all levels in one pass: each point into base_link, its height tested against the bands,
+    its bearing binned, and each bin keeps the nearest horizontal range. g: PointGrid."""
     zmin = lo.min()
     zmax = hi.max()
-    rmin2 = rmin * rmin
-    rmax2 = rmax * rmax
-    m = first.shape[0]
-    n_local = tan_edges.shape[0] - 1
     for i in range(pts.shape[0]):
-        px = pts[i, 0]
-        py = pts[i, 1]
-        pz = pts[i, 2]
-        z = R[2, 0] * px + R[2, 1] * py + R[2, 2] * pz + t[2]
-        if not (z >= zmin and z <= zmax):  # also drops NaN points
+        x, y, z = _to_base(R, t, pts[i, 0], pts[i, 1], pts[i, 2])
+        if not (z >= zmin and z <= zmax):  # in some level's band (also drops NaN points)
             continue
-        x = R[0, 0] * px + R[0, 1] * py + R[0, 2] * pz + t[0]
-        y = R[1, 0] * px + R[1, 1] * py + R[1, 2] * pz + t[1]
         r2 = x * x + y * y
-        if r2 < rmin2 or r2 > rmax2:
+        if r2 < g.rmin2 or r2 > g.rmax2:
             continue
-        xc = x * cos_c + y * sin_c
-        if xc <= 0.0:
-            continue
-        tt = (y * cos_c - x * sin_c) / xc
-        fj = (tt - t_min) * scale
-        if not (fj >= 0.0 and fj < m):  # (int() truncates towards 0: test before, or bin 0 takes 1/8 bin too much)
-            continue
-        j = int(fj)
-        k = first[j]
-        while k + 1 < n_local and tt >= tan_edges[k + 1]:
-            k += 1
-        b = bin0 + k
-        if full_circle:
-            b = b % n
-        elif b < 0 or b >= n:
-            continue
-        r = math.sqrt(r2)
-        for lev in range(n_lev):
-            if z >= lo[lev] and z <= hi[lev] and r < out[lev, b]:
-                out[lev, b] = r
+        b = _bearing_bin(x, y, g)
+        if b >= 0:
+            _keep_nearest(out, lo, hi, z, b, math.sqrt(r2))
 
 
 # ---- the image kernel: per-pixel tables, vectorised rows, per-column reduction ------------------------------------
@@ -386,34 +403,51 @@ def _column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, bin0, n, full_c
                     out2[b, j] = r2
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _block_buffers(w, n_band):  # pragma: no cover - compiled
+    """A block's per-pixel local bins, squared ranges and heights (_ROWS × w), its columns' lowest and highest bin,
+    and per band the columns' nearest squared range in those two bins."""
+    return (np.empty((_ROWS, w), np.int32), np.empty((_ROWS, w), np.float32), np.empty((_ROWS, w), np.float32),
+            np.empty(w, np.int32), np.empty(w, np.int32), np.empty((n_band, w), np.float32),
+            np.empty((n_band, w), np.float32))
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _block_points(depth, mask, v0, g, zmin, zmax, blk):  # pragma: no cover - compiled
+    """The points of a block of rows from v0: each pixel's point in base_link, its height and range tested and its
+    bearing binned (_row_bins); rows past the image's last are empty."""
+    ks, r2s, zs = blk[0], blk[1], blk[2]
+    rows = min(_ROWS, depth.shape[0] - v0)
+    for r in range(rows):
+        v = v0 + r
+        _row_bins(depth[v], mask[v], g.ax, g.ay, g.az, g.bx[v], g.by[v], g.bz[v], g.tx, g.ty, g.tz, g.a0, g.inv_inc,
+                  g.n_local, zmin, zmax, g.dmin, g.dmax, g.rmin2, g.rmax2, ks[r], r2s[r], zs[r])
+    for r in range(rows, _ROWS):
+        ks[r, :] = -1
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _block_nearest(lo, hi, g, blk, out2):  # pragma: no cover - compiled
+    """Each bin keeps the nearest squared range per band of the block's points: per column its lowest and highest
+    bin, the column's nearest in each, then one update per column and bin."""
+    ks, r2s, zs, kmin, kmax, m_lo, m_hi = blk
+    _column_bins(ks, kmin, kmax)
+    for j in range(lo.shape[0]):
+        _column_band_min(ks, r2s, zs, lo[j], hi[j], kmin, kmax, m_lo[j], m_hi[j])
+    _column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, g.bin0, g.n, g.full_circle, out2)
+
+
 @njit(cache=True, error_model="numpy")
-def _accumulate_image(depth, mask, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, bin0, n, full_circle, lo, hi,
-                      dmin, dmax, rmin2, rmax2, out2):  # pragma: no cover - compiled
-    """Thesis Alg. 7 over the pixels of a depth image where `mask` is set (0 / NaN depths dropped): every band at
-    once into out2 (bins × bands, squared ranges), in blocks of _ROWS rows."""
-    h, w = depth.shape
-    n_band = lo.shape[0]
-    ks = np.empty((_ROWS, w), np.int32)
-    r2s = np.empty((_ROWS, w), np.float32)
-    zs = np.empty((_ROWS, w), np.float32)
-    kmin = np.empty(w, np.int32)
-    kmax = np.empty(w, np.int32)
-    m_lo = np.empty((n_band, w), np.float32)
-    m_hi = np.empty((n_band, w), np.float32)
+def _accumulate_image(depth, mask, g, lo, hi, out2):  # pragma: no cover - compiled
+    """Thesis Alg. 7 over the pixels of a depth image where `mask` is set (0 / NaN depths dropped), every band at
+    once into out2 (bins × bands, squared ranges), in blocks of _ROWS rows: the block's points in base_link with
+    their height and bearing bin, then each bin keeps the nearest range per band. g: ImageGrid."""
+    blk = _block_buffers(depth.shape[1], lo.shape[0])
     zmin = lo.min()
     zmax = hi.max()
-    for v0 in range(0, h, _ROWS):
-        rows = min(_ROWS, h - v0)
-        for r in range(rows):
-            v = v0 + r
-            _row_bins(depth[v], mask[v], ax, ay, az, bx[v], by[v], bz[v], tx, ty, tz, a0, inv_inc, n_local, zmin, zmax,
-                      dmin, dmax, rmin2, rmax2, ks[r], r2s[r], zs[r])
-        for r in range(rows, _ROWS):
-            ks[r, :] = -1
-        _column_bins(ks, kmin, kmax)
-        for j in range(n_band):
-            _column_band_min(ks, r2s, zs, lo[j], hi[j], kmin, kmax, m_lo[j], m_hi[j])
-        _column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, bin0, n, full_circle, out2)
+    for v0 in range(0, depth.shape[0], _ROWS):
+        _block_points(depth, mask, v0, g, zmin, zmax, blk)
+        _block_nearest(lo, hi, g, blk, out2)
 
 
 @njit(cache=True, error_model="numpy")
@@ -535,8 +569,9 @@ class KosAccumulator:
         m = mount.matrix()
         tb = self._table(m, view_half)
         b = self.bearings
-        _accumulate(pts, m[:3, :3].copy(), m[:3, 3].copy(), self.lo, self.hi, tb.cos_c, tb.sin_c, tb.t_min, tb.scale,
-                    tb.first, tb.tan_edges, tb.bin0, b.n, b.full_circle, self.min_range, self.max_range, self._ranges)
+        g = PointGrid(tb.cos_c, tb.sin_c, tb.t_min, tb.scale, tb.first, tb.tan_edges, tb.bin0, b.n, b.full_circle,
+                      self.min_range * self.min_range, self.max_range * self.max_range)
+        _accumulate(pts, m[:3, :3].copy(), m[:3, 3].copy(), self.lo, self.hi, g, self._ranges)
 
     def add_depth(self, depth: np.ndarray, camera: CameraModel, mount: Transform, pixels: np.ndarray | None = None,
                   min_depth: float | None = None, max_depth: float | None = None) -> None:
@@ -555,9 +590,9 @@ class KosAccumulator:
         dmax = self.max_range if max_depth is None else float(max_depth)
         b = self.bearings
         tx, ty, tz = tb.t
-        _accumulate_image(np.ascontiguousarray(img), mask, tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, tx, ty, tz, tb.a0,
-                          1.0 / b.angle_increment, tb.n_local, tb.bin0, b.n, b.full_circle, self._lo32, self._hi32,
-                          _F(dmin), _F(dmax), _F(self.min_range ** 2), _F(self.max_range ** 2), self._r2)
+        g = ImageGrid(tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, tx, ty, tz, tb.a0, 1.0 / b.angle_increment, tb.n_local,
+                      tb.bin0, b.n, b.full_circle, _F(dmin), _F(dmax), _F(self.min_range ** 2), _F(self.max_range ** 2))
+        _accumulate_image(np.ascontiguousarray(img), mask, g, self._lo32, self._hi32, self._r2)
 
     def _pixel_table(self, camera: CameraModel, mount: Transform) -> _PixelTable:
         intrinsics = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)
