@@ -2,7 +2,8 @@
 for each log the setting is chosen among a few candidates on the other two logs only, and the left-out log's score
 under that choice is reported beside Cartographer's published one. Then every unscored real log
 (../shared/data/laser/unscored, imported by tools/laserimport.py where kosmap has no reader) is mapped with the
-default setting through `kosmap slam`, and its self-consistency figure (no ground truth) is reported.
+default setting through `kosmap slam`, and its self-consistency figure (no ground truth) is reported, beside that of
+the peer, yag-slam (OpenKarto, tools/peer_yag.py; the `bench` extra), on the same log.
 
     .venv/bin/python -m kosmap.tools.bench_slam_loo [--candidates default no-degeneracy ...] [--no-unscored]
 
@@ -27,6 +28,7 @@ from kosmap.mapping.config import load_config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.slam import evaluate, run_slam
 from kosmap.tools.bench_slam import LOGS, PUBLISHED
+from kosmap.tools import peer_yag
 from kosmap.tools.data import REPO, data_dir
 
 # The candidates: the default, and each of the rules added for buildings the tuning logs did not show turned off
@@ -77,6 +79,20 @@ def leave_one_out(res: dict) -> dict:
     return out
 
 
+def peer_unscored(log: Path) -> dict:
+    """yag-slam on an unscored log: keyframes, loops, real-time factor and the same self-consistency figure."""
+    why = peer_yag.unavailable()
+    if why is not None:
+        return {"unavailable": why}
+    try:
+        peer_yag.run_peer(log, max_seconds=10.0)  # warm-up, as tools/bench_slam.py's (numba, the C++ modules)
+        p = peer_yag.run_peer(log)
+    except Exception as e:  # the peer's own failure is a cell of the table, not the end of the benchmark
+        return {"unavailable": f"yag-slam failed: {type(e).__name__}: {e}"}
+    return {"keyframes": p.keyframes, "loops": p.loops, "wall_s": p.wall_s, "realtime_factor": p.duration_s / p.wall_s,
+            "consistency": p.consistency}
+
+
 def map_unscored(tmp: Path) -> list[dict]:
     """`kosmap slam` on each unscored log (imported first where needed); its metrics.json's run summary."""
     from kosmap.tools.laserimport import import_log
@@ -98,6 +114,7 @@ def map_unscored(tmp: Path) -> list[dict]:
         if p.returncode == 0 and mj.exists():
             run = json.loads(mj.read_text())["run"]
             row.update({k: run.get(k) for k in ("scans", "keyframes", "loops", "duration_s", "realtime_factor", "consistency")})
+        row["yag_slam"] = peer_unscored(log)
         rows.append(row)
         print(f"{rel}: exit {p.returncode}, {row.get('loops')} loops, consistency {row.get('consistency')}", flush=True)
     return rows
@@ -124,16 +141,32 @@ def markdown(loo: dict, res: dict, unscored: list[dict], meta: dict) -> str:
               "Mapped with the defaults by `kosmap slam` (research formats imported by `tools/laserimport.py`). The "
               "self-consistency figure: where the robot came back, how far its scans lie from the earlier ones (median, "
               "90 %); a consistent map gives millimetres to a few centimetres.", "",
-              "| log | sensor, format | exit | scans | loops | revisits off, median / 90 % (m) | likely bent | real-time |",
-              "|---|---|---|---|---|---|---|---|"]
+              "Beside it, yag-slam (OpenKarto, `tools/peer_yag.py`) on the same log with the same odometry: its loops, the "
+              "same figure over its keyframes (0.2 m apart, ours 0.15 m) and its real-time factor.", "",
+              "| log | sensor, format | exit | scans | loops | revisits off, median / 90 % (m) | likely bent | real-time "
+              "| yag-slam loops | yag-slam revisits off (m) | yag-slam real-time |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in unscored:
             c = r.get("consistency") or {}
-            med = c.get("median_m")
-            off = "no revisits" if med is None else f"{med:.3f} / {c.get('p90_m', float('nan')):.3f}"
+            off = _revisits(c)
             rt = r.get("realtime_factor")
             L.append(f"| {r['log']} | {r['what']} | {r['exit']} | {r.get('scans', '–')} | {r.get('loops', '–')} | {off} | "
-                     f"{'yes' if c.get('bent') else 'no'} | {f'{rt:.0f}×' if rt else '–'} |")
+                     f"{'yes' if c.get('bent') else 'no'} | {f'{rt:.0f}×' if rt else '–'} | {_peer_cells(r.get('yag_slam'))} |")
     return "\n".join(L) + "\n"
+
+
+def _revisits(c: dict) -> str:
+    med = c.get("median_m")
+    return "no revisits" if med is None or med != med else f"{med:.3f} / {c.get('p90_m', float('nan')):.3f}"
+
+
+def _peer_cells(y: dict | None) -> str:
+    """yag-slam's three cells of an unscored log's row."""
+    if not y:
+        return "– | – | –"
+    if "unavailable" in y:
+        return f"peer unavailable: {y['unavailable']} | | "
+    return f"{y['loops']} | {_revisits(y.get('consistency') or {})} | {y['realtime_factor']:.0f}×"
 
 
 def main() -> None:

@@ -194,6 +194,8 @@ def _fill_odometry(odom: np.ndarray) -> np.ndarray:
 def run_yag(log: LaserLog, settings: YagSettings | None = None) -> YagRun:
     """yag-slam's GraphSlam over the log: every scan's laser pose, which scans were its keyframes, loops closed."""
     settings = settings or YagSettings()
+    if not np.isfinite(log.odom).any():
+        raise ValueError("the log has no wheel odometry; yag-slam's keyframes and matching start from it")
     mapper = make_mapper(settings)
     odom = _fill_odometry(log.odom)
     key_of = np.zeros(len(odom), np.int64)

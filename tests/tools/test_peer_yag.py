@@ -76,3 +76,11 @@ def test_yag_slams_matching_over_the_synthetic_ring_beats_its_odometry(seed):
     e_odom, e_yag = err(plog.odom), err(run.poses)
     assert e_yag < 0.2 < e_odom, (e_yag, e_odom)
     assert e_yag < 0.3 * e_odom, (e_yag, e_odom)
+
+
+@needs_yag
+def test_a_log_without_odometry_is_refused_with_the_reason():
+    _, plog, _ = _peer_log(seed=4)
+    plog.odom[:] = np.nan
+    with pytest.raises(ValueError, match="no wheel odometry"):
+        peer_yag.run_yag(plog)
