@@ -180,6 +180,12 @@ def _pm(v, nd):
     return f"{v[0]:.{nd}f} ± {v[1]:.{nd}f}"
 
 
+def _split_pair(peer: dict, ours: dict) -> str:
+    """Short and long relations' abs trans error, the peer's with ours in brackets."""
+    return " / ".join(f"{peer[k]['abs_trans']['mean']:.3f} ({ours[k]['abs_trans']['mean']:.3f})" if k in peer and k in ours
+                      else "–" for k in ("short", "long"))
+
+
 def peer_section(res: dict) -> list[str]:
     """The summary of the peer beside ours: errors, speeds and their ratios per log."""
     rows = [(r["log"], r["ours"], r["yag_slam"]) for r in res.values() if "yag_slam" in r]
@@ -197,11 +203,12 @@ def peer_section(res: dict) -> list[str]:
          "Ratios are yag-slam ÷ kosmap: an error ratio above 1 means kosmap is more accurate, a time ratio above 1 "
          "that kosmap is faster.", "",
          "| log | kosmap abs trans (m) | yag-slam abs trans (m) | error ratio | kosmap real-time (wall) | yag-slam real-time "
-         "(wall) | time ratio wall / CPU | yag-slam keyframes, loops | yag-slam revisits off, median / 90 % (m) |",
-         "|---|---|---|---|---|---|---|---|---|"]
+         "(wall) | time ratio wall / CPU | relations < 30 s / ≥ 30 s (m): yag-slam (kosmap) | yag-slam keyframes, loops "
+         "| yag-slam revisits off, median / 90 % (m) |",
+         "|---|---|---|---|---|---|---|---|---|---|"]
     for log, o, y in rows:
         if "unavailable" in y:
-            L.append(f"| {log} | {o['relations']['abs_trans']['mean']:.4f} | peer unavailable: {y['unavailable']} | | | | | | |")
+            L.append(f"| {log} | {o['relations']['abs_trans']['mean']:.4f} | peer unavailable: {y['unavailable']} | | | | | | | |")
             continue
         c = y.get("consistency") or {}
         off = "no revisits" if c.get("median_m") is None or c["median_m"] != c["median_m"] else \
@@ -210,7 +217,7 @@ def peer_section(res: dict) -> list[str]:
               else "– (yag-slam from the previous run)")
         L.append(f"| {log} | {o['relations']['abs_trans']['mean']:.4f} | {y['all']['abs_trans']['mean']:.4f} | "
                  f"**×{y['ratio']['abs_trans']:.1f}** | {o['rt_wall']:.0f}× | {y['rt_wall']:.0f}× | "
-                 f"{tr} | {y['keyframes']}, {y['loops']} | {off} |")
+                 f"{tr} | {_split_pair(y['split'], o['split'])} | {y['keyframes']}, {y['loops']} | {off} |")
     return L + [""]
 
 
