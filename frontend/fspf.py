@@ -2,9 +2,8 @@
 
 Both take a depth image in metres, the pinhole camera and an explicit seed, and return `Planes`
 (frontend/planes.py). The inner loops run compiled with numba (docs/dependencies.md measured numpy-only FSPF+ at
-18–20 ms per 512×424 frame against ~3 ms compiled); `backend="numpy"` keeps a vectorised numpy path of the
-same algorithms for the benchmark's honesty (same steps and tests, not the same random draws: its RANSAC
-scores hypotheses in batches and refits on all inliers).
+18–20 ms per 512×424 frame against ~3 ms compiled); the benchmark's numpy versions of the same algorithms are
+tools/fspf_numpy.py.
 
 FSPF+ (thesis Alg. 3): p0 a random eligible, unconsumed pixel; p1, p2 eligible within Ω of it; the search
 window W = fx·Δ/z̄, H = fy·Δ/z̄ around p0 (the projection of the world size Δ at their mean depth z̄;
@@ -30,8 +29,7 @@ rest unexamined; windows land at random, so which 10 % that is varies by seed (t
 81–100 % of it on its plane at 0.90, 87–100 % at 0.99). Growing attaches those pixels at ~25 ns each, less
 than a window's RANSAC costs, so the default keeps 0.90 and grows (100 % of the table at every seed); a
 higher analysed_fraction only buys planes in regions no plane touches (small objects), at the windows' cost.
-Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py. The
-numpy path (`backend="numpy"`, for the benchmark) has neither the coherence test nor growing.
+Measured: tests/tools/test_planes_real.py, tests/frontend/test_fspf_tabletop.py, tools/bench_planes.py.
 Simulated acceptance numbers: tests/frontend/test_fspf_sim.py; speed: tools/bench_planes.py.
 
 FSPF (Biswas & Veloso 2012, thesis Alg. 1): random d0, d1, d2 within η; a plane through their points; l
@@ -50,7 +48,6 @@ import numpy as np
 from kosmap.frontend.camera import DepthConfig, camera_axes
 from kosmap.frontend.fspf_biswas import Params as BiswasParams, fspf_kernel
 from kosmap.frontend.fspf_kernels import classify_many, rng_state
-from kosmap.frontend.fspf_numpy import fspf_numpy, fspf_plus_numpy
 from kosmap.frontend.fspf_plus import Params, fspf_plus_kernel
 from kosmap.frontend.params import StageConfig, param
 from kosmap.frontend.planes import PLANE_CLASSES, FrameStats, Planes, merge_planes, moments_from_sums, refit_from_moments
@@ -65,7 +62,6 @@ class FspfConfig(StageConfig):
 
     section = "fspf"
     method: str = param("fspf+", choices=("fspf+", "fspf"), doc="FSPF+ (thesis) or FSPF (Biswas, baseline)")
-    backend: str = param("numba", choices=("numba", "numpy"), doc="compiled inner loops, or numpy only (benchmarks)")
     n_min: int = param(40, lo=3, doc="FSPF+: planes with this many inliers or fewer are dropped (nMin)")
     omega_px: int = param(60, lo=2, doc="FSPF+: p1, p2 are drawn within this many pixels of p0 (Ω)", unit="px")
     delta_m: float = param(0.5, lo=0.0, lo_open=True, doc="world size of the search window (Δ; FSPF's S)", unit="m")
@@ -207,8 +203,7 @@ def _drop_mask(cfg: FspfConfig) -> np.ndarray:
 
 
 def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
-              mount: Transform | None = None, seed: int | None = None, backend: str | None = None,
-              copy: bool = True) -> Planes:
+              mount: Transform | None = None, seed: int | None = None, copy: bool = True) -> Planes:
     """FSPF+ (thesis Alg. 3, 5, 6) on one depth image (H×W metres; 0/NaN invalid). Same seed, same result.
 
     `mount` (base_link ← optical, frontend.camera.camera_mount) gives gravity for the classes; None = level.
@@ -221,9 +216,6 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     depth = _prepare(depth_m, cam)
     classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
-    if (backend or cfg.backend) == "numpy":
-        planes = fspf_plus_numpy(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
-        return _finish(planes, cfg, classes_of, t0)
     H, W = depth.shape
     ws = _workspace(H * W, H * W // (cfg.n_min + 1) + 1)
     out_pix, out_pts, out_plane = ws["out_pix"], ws["out_pts"], ws["out_plane"]
@@ -253,7 +245,7 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
 
 
 def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
-         mount: Transform | None = None, seed: int | None = None, backend: str | None = None) -> Planes:
+         mount: Transform | None = None, seed: int | None = None) -> Planes:
     """FSPF (Biswas & Veloso; thesis Alg. 1), the baseline, with the same classes, dropping and merging."""
     t0 = time.thread_time()
     cfg = cfg or FspfConfig()
@@ -261,9 +253,6 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
     depth = _prepare(depth_m, cam)
     classes_of = _Classes(cfg, mount)
     seed = cfg.seed if seed is None else seed
-    if (backend or cfg.backend) == "numpy":
-        planes = fspf_numpy(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
-        return _finish(planes, cfg, classes_of, t0)
     H, W = depth.shape
     l = cfg.fspf_local_samples
     n_cap = cfg.fspf_max_points + l
@@ -284,6 +273,21 @@ def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, d
                        _workspace(H * W, 1)["st"], out, stats)
     planes = Planes(out_pts[:n].copy(), out_plane[:n].copy(), out_pix[:n].copy(), pl_n[:p].copy(), pl_d[:p].copy(),
                     pl_cls[:p].copy(), pl_cnt[:p].copy(), FrameStats(*(int(s) for s in stats)), (H, W), "fspf")
+    return _finish(planes, cfg, classes_of, t0)
+
+
+def framed(kernel, depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None,
+           depth_cfg: DepthConfig | None = None, mount: Transform | None = None, seed: int | None = None) -> Planes:
+    """A plane filter `kernel(depth, cam, cfg, depth_cfg, classes_of, drop, rng)` framed as fspf_plus and fspf frame
+    theirs: the depth checked, the classes, dropping and merging, the time. For the numpy reference versions of
+    the benchmark (tools/fspf_numpy.py)."""
+    t0 = time.thread_time()
+    cfg = cfg or FspfConfig()
+    dcfg = depth_cfg or _DEFAULT_DEPTH
+    depth = _prepare(depth_m, cam)
+    classes_of = _Classes(cfg, mount)
+    seed = cfg.seed if seed is None else seed
+    planes = kernel(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
     return _finish(planes, cfg, classes_of, t0)
 
 

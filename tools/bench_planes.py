@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
 from kosmap.frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
 from kosmap.tools.data import REPO, data_dir  # noqa: E402
+from kosmap.tools.fspf_numpy import filter_planes_numpy  # noqa: E402
 from kosmap.tools.benchutil import pin_one_core  # noqa: E402
 
 EPSILONS = (0.005, 0.010, 0.020)
@@ -103,12 +104,13 @@ THESIS_MODE = {"planes_per_window": 1, "merge": False, "bend_max": 0.0, "min_wid
 def time_method(frames, method: str, backend: str, eps: float, dcfg: DepthConfig, repeats: int = 1, **kw) -> dict:
     """Per frame the best of `repeats` runs (same seed, same work: the minimum is the least disturbed by
     other jobs on the machine), then median and p90 over the frames."""
-    cfg = FspfConfig(method=method, backend=backend, epsilon_m=eps, fspf_error_m=eps, **kw)
+    cfg = FspfConfig(method=method, epsilon_m=eps, fspf_error_m=eps, **kw)
+    run = filter_planes if backend == "numba" else filter_planes_numpy  # the numpy reference: tools/fspf_numpy.py
     label, d, cam, mount = frames[0]
-    filter_planes(d, cam, cfg, dcfg, mount, seed=0)  # warm caches
+    run(d, cam, cfg, dcfg, mount, seed=0)  # warm caches
     cpu, wall, inl, planes = [], [], [], []
     for i, (_, d, cam, mount) in enumerate(frames):
-        runs = [_timed(lambda: filter_planes(d, cam, cfg, dcfg, mount, seed=i)) for _ in range(repeats)]
+        runs = [_timed(lambda: run(d, cam, cfg, dcfg, mount, seed=i)) for _ in range(repeats)]
         p = runs[0][0]
         cpu.append(min(r[1] for r in runs))
         wall.append(min(r[2] for r in runs))

@@ -48,7 +48,7 @@ class StatsTable:
         shares, where gravity came from (frames per source), the mount seen from the floor, the warnings."""
         ms = np.array([r["elapsed_ms"] for r in self.rows])
         means = self.summary_row()
-        return {"input": str(path), "method": cfg.fspf.method, "backend": cfg.fspf.backend, "frames": len(self.rows),
+        return {"input": str(path), "method": cfg.fspf.method, "frames": len(self.rows),
                 "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
                 **{k: means[k] for k in STATS_COLUMNS[3:]},
                 "gravity": {k: {"frames": v, "from": GRAVITY_WORDS[k]} for k, v in gravity_used.items()},

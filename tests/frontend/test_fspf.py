@@ -12,9 +12,15 @@ from kosmap.frontend.planes import (CEILING, FRONT, GROUND, LEFT, PLANE_CLASSES,
 from kosmap.frontend.records import CameraModel
 from tests.frontend.plane_truth import recovered, score
 from kosmap.tools.boxroom import frame, noise_sigma
+from kosmap.tools.fspf_numpy import filter_planes_numpy
 
 POSE = (0.6, 0.3, 0.0)
 WALLS = (3, 4, 5, 6)
+
+
+def _filter(backend: str):
+    """The compiled filter ("numba"), or the benchmark's numpy reference of the same algorithm ("numpy")."""
+    return filter_planes if backend == "numba" else filter_planes_numpy
 
 
 def _world_from_cam(mount):
@@ -32,8 +38,8 @@ def room_frame(request):
 def test_fspf_plus_accuracy_on_box_room(room_frame, backend):
     depth, sid, room, cam, mount = room_frame
     truth = {r.id: (r.cls, r.plane) for r in room.surfaces}
-    cfg = FspfConfig(backend=backend, drop_classes=[], analysed_fraction=0.99)
-    p = fspf_plus(depth, cam, cfg, mount=mount, seed=1)
+    cfg = FspfConfig(drop_classes=[], analysed_fraction=0.99)
+    p = _filter(backend)(depth, cam, cfg, mount=mount, seed=1)
     s = score(p, sid, truth, _world_from_cam(mount), cam, noise_sigma)
     assert s["on_surface"] >= 0.98
     assert s["median_normal_err_deg"] <= 2.0
@@ -44,7 +50,7 @@ def test_fspf_plus_accuracy_on_box_room(room_frame, backend):
     visible = {truth[k][0] for k in truth if (eligible & (sid == k)).sum() > 5000}
     assert {"ground", "wall", "slanted"} <= visible <= names
     # walls recovered at the offline configuration, with ground and ceiling dropped
-    p2 = fspf_plus(depth, cam, FspfConfig(backend=backend, analysed_fraction=0.99), mount=mount, seed=1)
+    p2 = _filter(backend)(depth, cam, FspfConfig(analysed_fraction=0.99), mount=mount, seed=1)
     assert recovered(p2, sid, depth_constraints(depth, 0.5, 4.5), WALLS) >= 0.90
     assert not np.isin(p2.classes, [GROUND, CEILING]).any()
 
@@ -53,8 +59,8 @@ def test_fspf_plus_accuracy_on_box_room(room_frame, backend):
 def test_fspf_baseline_on_box_room(room_frame, backend):
     depth, sid, room, cam, mount = room_frame
     truth = {r.id: (r.cls, r.plane) for r in room.surfaces}
-    cfg = FspfConfig(method="fspf", backend=backend, drop_classes=[])
-    p = filter_planes(depth, cam, cfg, mount=mount, seed=2)
+    cfg = FspfConfig(method="fspf", drop_classes=[])
+    p = _filter(backend)(depth, cam, cfg, mount=mount, seed=2)
     assert p.method == "fspf"
     assert 2000 <= len(p.points) + p.stats.dropped <= 2000 + cfg.fspf_local_samples  # stops at n_max
     s = score(p, sid, truth, _world_from_cam(mount), cam, noise_sigma)
@@ -67,10 +73,10 @@ def test_fspf_baseline_on_box_room(room_frame, backend):
 @pytest.mark.parametrize("backend", ["numba", "numpy"])
 def test_same_seed_same_result(method, backend):
     depth, _, _, cam, mount = frame(seed=5)
-    cfg = FspfConfig(method=method, backend=backend)
-    a = filter_planes(depth, cam, cfg, mount=mount, seed=7)
-    b = filter_planes(depth, cam, cfg, mount=mount, seed=7)
-    c = filter_planes(depth, cam, cfg, mount=mount, seed=8)
+    cfg = FspfConfig(method=method)
+    a = _filter(backend)(depth, cam, cfg, mount=mount, seed=7)
+    b = _filter(backend)(depth, cam, cfg, mount=mount, seed=7)
+    c = _filter(backend)(depth, cam, cfg, mount=mount, seed=8)
     for f in ("points", "plane", "pixels", "normals", "offsets", "classes", "counts"):
         assert np.array_equal(getattr(a, f), getattr(b, f)), f
     assert not np.array_equal(a.pixels, c.pixels)
@@ -126,12 +132,12 @@ def test_degenerate_images_do_not_break():
                   np.full((30, 40), 9.0, np.float32)):
         for method in ("fspf+", "fspf"):
             for backend in ("numba", "numpy"):
-                p = filter_planes(depth, cam, FspfConfig(method=method, backend=backend), seed=0)
+                p = _filter(backend)(depth, cam, FspfConfig(method=method), seed=0)
                 assert len(p) == 0 and p.stats.ineligible == depth.size
     # one fronto-parallel plane filling the image; the window is clipped at the border
     flat = np.full((30, 40), 1.0, np.float32)
     for backend in ("numba", "numpy"):
-        p = fspf_plus(flat, cam, FspfConfig(backend=backend, n_min=10), seed=0)
+        p = _filter(backend)(flat, cam, FspfConfig(n_min=10), seed=0)
         assert len(p) == 1 and PLANE_CLASSES[p.classes[0]] == "front"
         assert np.allclose(p.normals[0], [0, 0, -1], atol=1e-6) and p.offsets[0] == pytest.approx(1.0)
     with pytest.raises(ValueError):

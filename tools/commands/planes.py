@@ -102,7 +102,7 @@ def register(app: typer.Typer) -> None:
             print(f"mount from the floor ({m['frames']} frames): pitch {m['pitch_deg']:.2f}°, roll {m['roll_deg']:.2f}°, "
                   f"height {m['height_m']:.3f} m; given: pitch {m['given_pitch_deg']:.2f}°, roll {m['given_roll_deg']:.2f}°, "
                   f"height {m['given_height_m']:.3f} m ({out}/mount.toml)")
-        print(f"{s['frames']} frames, {s['method']} ({s['backend']}): median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
+        print(f"{s['frames']} frames, {s['method']}: median {s['median_ms']:.2f} ms, p90 {s['p90_ms']:.2f} ms "
               f"per frame; of the pixels: ineligible {s['ineligible_pct']:.1f} %, inliers {s['inlier_pct']:.1f} %, "
               f"dropped {s['dropped_pct']:.1f} %, outliers {s['outlier_pct']:.1f} %, "
               f"not examined {s['unexamined_pct']:.1f} %; {s['planes']:.1f} planes per frame")

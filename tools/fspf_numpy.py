@@ -1,16 +1,27 @@
-"""FSPF and FSPF+ in numpy only (the same algorithms, vectorised per window): `backend="numpy"`, kept so the
-benchmark (tools/bench_planes.py) can show what compiling buys. It has neither the coherence test nor growing."""
+"""FSPF and FSPF+ in numpy only: the reference versions tools/bench_planes.py times beside the compiled filters of
+frontend/fspf.py, to show what compiling buys (docs/dependencies.md). The same algorithms, vectorised per window:
+the same steps and tests, not the same random draws (RANSAC scores hypotheses in batches and refits on all
+inliers), and neither the coherence test nor growing. The classes, dropping and merging are fspf.py's."""
 
 from __future__ import annotations
 
 
 import numpy as np
 
-from kosmap.frontend.camera import depth_constraints
+from kosmap.frontend.camera import DepthConfig, depth_constraints
+from kosmap.frontend.fspf import FspfConfig, framed
 from kosmap.frontend.planes import FrameStats, Planes, fit_plane, ransac_plane, rectify
+from kosmap.frontend.records import CameraModel, Transform
 
 
-# ---- numpy paths (same algorithms, vectorised per window; for the benchmark) ---------------------------------------------
+def filter_planes_numpy(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None,
+                        depth_cfg: DepthConfig | None = None, mount: Transform | None = None,
+                        seed: int | None = None) -> Planes:
+    """FSPF+ or FSPF in numpy, as `cfg.method` says (the arguments of frontend.fspf.filter_planes)."""
+    cfg = cfg or FspfConfig()
+    kernel = fspf_numpy if cfg.method == "fspf" else fspf_plus_numpy
+    return framed(kernel, depth_m, cam, cfg, depth_cfg, mount, seed)
+
 
 def fspf_plus_numpy(depth, cam, cfg, dcfg, classes_of, drop, rng):
     H, W = depth.shape
