@@ -57,10 +57,12 @@ def test_mosd_table_is_one_plane(data_dir):
         r, c = np.nonzero(table)
         n_true = fit_plane(backproject(s.depth, s.camera, r, c))[0]
         cfg = FspfConfig(drop_classes=[])  # the defaults: 90 % analysed, the rest grown onto the planes found
-        recalls = []
+        recalls, kept = [], {}
         for seed in range(5):
             p = fspf_plus(s.depth, s.camera, cfg, seed=seed)
             lab = p.label_image()
+            for obj in np.unique(s.labels[s.labels >= 20]):
+                kept.setdefault(int(obj), []).append((lab[s.labels == obj] > 0).mean())
             overlap = np.bincount(lab[table], minlength=len(p) + 1)[1:]
             k = int(overlap.argmax())
             recall, precision = overlap[k] / table.sum(), overlap[k] / p.counts[k]
@@ -68,9 +70,10 @@ def test_mosd_table_is_one_plane(data_dir):
             assert recall >= 0.90 and precision >= 0.98, (s.name, seed, recall, precision)
             assert np.degrees(np.arccos(min(1.0, abs(p.normals[k] @ n_true)))) <= 0.5, (s.name, seed)
         assert np.mean(recalls) >= 0.95 and max(recalls) - min(recalls) <= 0.05, (s.name, recalls)
-        # the boxes standing on the table are kept too (their faces are planes: most of their pixels)
-        for obj in np.unique(s.labels[s.labels >= 20]):
-            assert (lab[s.labels == obj] > 0).mean() >= 0.6, (s.name, obj)
+        # the boxes standing on the table are kept too (their faces are planes: most of their pixels), at the median
+        # seed (a box's share varies by seed: which windows land on it)
+        for obj, share in kept.items():
+            assert np.median(share) >= 0.6, (s.name, obj, share)
         again = fspf_plus(s.depth, s.camera, cfg, seed=4)  # the same seed, the same planes
         assert np.array_equal(again.pixels, p.pixels) and np.array_equal(again.normals, p.normals)
 
