@@ -15,9 +15,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from kosmap.frontend.errors import LogError
 from kosmap.frontend.planes import PLANE_CLASSES, Planes, classify
+from kosmap.frontend.records import Transform
 
 LEVEL_UP = np.array([0.0, -1.0, 0.0])  # a level camera: up is the optical frame's −y
 GRAVITY_FILES = ("gravity-direction.txt", "gravity.txt")
@@ -138,3 +140,21 @@ def read_gravity_file(folder: Path) -> tuple[np.ndarray, Path] | None:
                     raise LogError(f"gravity file {p} must hold three numbers 'gx gy gz', not all zero")
                 return -g / np.linalg.norm(g), p
     return None
+
+
+def gravity_mount(mount: Transform, up: np.ndarray, height: float = float("nan")) -> Transform:
+    """The mount (base_link ← optical) turned by the smallest rotation that makes `up` (in the optical frame) the
+    base's +z: the pitch and roll gravity says, the yaw (heading) and x, y kept; z the camera's height above the
+    floor when it is known (finite), else the mount's own."""
+    m = mount.matrix()
+    u = m[:3, :3] @ (np.asarray(up, float) / np.linalg.norm(up))  # up as the given mount puts it in base_link
+    z = np.array([0.0, 0.0, 1.0])
+    axis = np.cross(u, z)
+    s, c = np.linalg.norm(axis), float(u @ z)
+    turn = Rotation.from_rotvec(axis / s * np.arctan2(s, c)).as_matrix() if s > 1e-12 else np.eye(3)
+    out = np.eye(4)
+    out[:3, :3] = turn @ m[:3, :3]
+    out[:3, 3] = m[:3, 3]
+    if np.isfinite(height):
+        out[2, 3] = height
+    return Transform.from_matrix(mount.parent, mount.child, out, mount.stamp_ns)

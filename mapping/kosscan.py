@@ -132,7 +132,8 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
         "fspf_ms_median": float(np.median(fspf_ms)) if fspf_ms else None,
         "kos_ms_median": float(np.median(kos_ms)) if kos_ms else None,
         "filled_fraction": {k: float(np.mean(v)) if v else 0.0 for k, v in fill.items()},
-        "fused": run.laser_mount is not None, "warnings": run.warnings,
+        "fused": run.laser_mount is not None, "gravity": run.gravity.as_dict() if run.gravity else None,
+        "warnings": run.warnings,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))
     return summary

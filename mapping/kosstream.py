@@ -21,6 +21,7 @@ from kosmap.frontend.kosframe import KosFrame, merge_cameras
 from kosmap.frontend.logs import detect_topics, open_log
 from kosmap.frontend.records import DepthFrame, Scan, Transform, Transforms
 from kosmap.mapping.config import Config
+from kosmap.mapping.gravitymount import GravityMount, resolve_gravity
 from kosmap.mapping.runtime.framepool import FramePool
 
 KOS_PREFIX = "/kinect_scan/"
@@ -87,6 +88,7 @@ class ScanRun:
     statics: list[Transforms] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
     total_frames: int = 0
+    gravity: GravityMount | None = None  # where gravity came from and the mounts it gave
 
 
 class KosStream:
@@ -101,7 +103,7 @@ class KosStream:
     def __init__(self, det, cfg: Config, run: ScanRun, pool: FramePool, limit: int | None = None,
                  on_frame: Callable[[KosFrame], None] | None = None,
                  cloud: Callable[[DepthItem], int] | None = None, min_period_ns: int = 0,
-                 fuse: bool = True) -> None:
+                 fuse: bool = True, mounts: dict[str, Transform] | None = None) -> None:
         self.det, self.cfg, self.run, self.pool = det, cfg, run, pool
         self.limit = None if limit is None else limit * len(det.depth)
         self.on_frame = on_frame
@@ -109,6 +111,7 @@ class KosStream:
         self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
         self._last: dict[str, int] = {}
         self.fuse = fuse  # add the scan fused with the laser to each step (else the step only names its laser)
+        self.mounts = mounts or {}  # optical frame id → the gravity-aligned mount that replaces the given one
         self._seen: dict[tuple, np.ndarray] = {}  # bins in view, per set of cameras
         self.resolver = DepthResolver(det, cfg.depth)
         self.sync = CameraSync(det.depth, tol_ns=25_000_000)
@@ -139,6 +142,8 @@ class KosStream:
             self.run.statics.append(rec)
         if item is None:
             return []
+        if item.frame_id in self.mounts:
+            item.mount = self.mounts[item.frame_id]
         if self.limit is not None and self.submitted >= self.limit:
             self.stopped = True
             return []
@@ -212,8 +217,11 @@ def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = Non
         run.total_frames = sum(info.count(t) for t in det.depth)
         if limit is not None:
             run.total_frames = min(run.total_frames, limit * len(det.depth))
+        grav = resolve_gravity(log_path, cfg)
+        run.gravity = grav
+        run.warnings.extend(grav.warnings())
         with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-            stream = KosStream(det, cfg, run, pool, limit, on_frame)
+            stream = KosStream(det, cfg, run, pool, limit, on_frame, mounts=grav.mounts)
             for rec in log.read(det.wanted()):
                 yield from stream.feed(rec)
                 if stream.stopped:

@@ -103,6 +103,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
             raise BuildInterrupted(f"interrupted after {read.log_s:.1f} s of log; the complete build already in "
                                    f"{final_out} is kept (run again to replace it)")
         rss = {"after_read": peak_rss_mb()}
+        if read.run.gravity is not None:
+            say("\n".join(read.run.gravity.lines()))
         say(("interrupted: mapping what was read, " if read.partial else "")
             + f"{read.frames} depth frames, {read.laser_kept} laser scans read in {read.seconds:.1f} s")
         t_slam = time.perf_counter()
@@ -127,6 +129,8 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         metrics = build_metrics(log, src, read, results, maps, comparisons, overlays, cfg, blueprint, workers, warnings,
                                 Timing(read.seconds, slam_finish_s, maps_s, compare_s))
         metrics = _renamed(metrics, str(out), str(final_out))  # the files' paths as they will be once in place
+        # where the depth cameras' gravity came from, and the mounts it gave (mapping/gravitymount.py)
+        metrics["gravity"] = read.run.gravity.as_dict() if read.run.gravity is not None else None
         if blueprint_scale is not None:  # a plain-image blueprint: the report's trajectory figure reads it again
             metrics["sources"]["blueprint_scale"] = blueprint_scale
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,

@@ -52,5 +52,7 @@ def register(app: typer.Typer) -> None:
         print(f"bins filled: {fill}")
         print(f"median FSPF+ {s['fspf_ms_median']:.1f} ms, KOS {s['kos_ms_median']:.2f} ms per frame"
               + ("; fused with the laser" if s["fused"] else ""))
+        if s.get("gravity"):
+            print(f"gravity: {s['gravity']['from']}")
         for w in s["warnings"]:
             print(f"warning: {w}")
