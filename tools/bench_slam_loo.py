@@ -128,11 +128,12 @@ def markdown(loo: dict, res: dict, unscored: list[dict], meta: dict) -> str:
          "wall-clock real-time factors vary with the other jobs). For each log the setting is chosen among "
          f"{len(res)} candidates ({', '.join(f'`{c}`' for c in res)}) on the two other logs only (mean of abs trans ÷ "
          "Cartographer's), and the left-out log is scored under that choice.", "",
-         "| left out | chosen on the others | abs trans (m) | Cartographer (published) | abs rot (°) | real-time (wall) |",
-         "|---|---|---|---|---|---|"]
+         "| left out | chosen on the others | abs trans (m) | Cartographer (published) | abs rot (°) | real-time (wall) "
+         "| real-time (CPU) |",
+         "|---|---|---|---|---|---|---|"]
     for n, v in loo.items():
         L.append(f"| {LOGS[n][2]} | `{v['chosen']}` | **{v['abs_trans']:.4f}** | {PUBLISHED[n]['cartographer']['abs_trans'][0]:.4f} "
-                 f"| {v['abs_rot_deg']:.3f} | {v['rt_wall']:.0f}× |")
+                 f"| {v['abs_rot_deg']:.3f} | {v['rt_wall']:.0f}× | {v['rt_cpu']:.0f}× |")
     L += ["", "Every candidate on every log (abs trans, m):", "", "| candidate | " + " | ".join(LOGS[n][2] for n in LOGS) + " |",
           "|---|" + "---|" * len(LOGS)]
     for c, per in res.items():
