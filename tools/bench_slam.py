@@ -246,7 +246,7 @@ def markdown(res: dict, meta: dict) -> str:
         if y and "unavailable" in y:
             L.append(f"| yag-slam (OpenKarto) | peer unavailable: {y['unavailable']} |" + " |" * (len(METRICS) - 1))
         elif y:
-            L.append(f"| yag-slam (OpenKarto, same run{'; the previous run' if y.get('previous_run') else ''}) | "
+            L.append(f"| yag-slam (OpenKarto, {'the previous run' if y.get('previous_run') else 'same run'}) | "
                      + " | ".join(_pm(y["all"][k], nd) for k, _, nd in METRICS) + " |")
         if "frontend_only" in r:
             L.append("| our front end alone (no loops) | " + " | ".join(_pm(r["frontend_only"]["all"][k], nd) for k, _, nd in METRICS) + " |")
@@ -262,7 +262,7 @@ def markdown(res: dict, meta: dict) -> str:
               f"| kosmap | {o['duration_s']:.0f} | {o['wall_s']:.1f} | {o['cpu_s']:.1f} | **{o['rt_wall']:.0f}×** | {o['rt_cpu']:.0f}× |",
               f"| Cartographer (published) | {dur} | {cwall} | – | {dur / cwall:.0f}× | – |"]
         if y and "unavailable" not in y:
-            L.append(f"| yag-slam (OpenKarto) | {y['duration_s']:.0f} | {y['wall_s']:.1f} | {y['cpu_s']:.1f} | {y['rt_wall']:.0f}× | {y['duration_s'] / y['cpu_s']:.0f}× |")
+            L.append(f"| yag-slam (OpenKarto{', the previous run' if y.get('previous_run') else ''}) | {y['duration_s']:.0f} | {y['wall_s']:.1f} | {y['cpu_s']:.1f} | {y['rt_wall']:.0f}× | {y['duration_s'] / y['cpu_s']:.0f}× |")
         if "kiss_icp_odom" in r:
             k = r["kiss_icp_odom"]
             L.append(f"| kiss-icp + odometry (front end only) | {o['duration_s']:.0f} | {k['wall_s']:.1f} | {k['cpu_s']:.1f} | {k['rt_wall']:.0f}× | {o['duration_s'] / k['cpu_s']:.0f}× |")
