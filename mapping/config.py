@@ -94,6 +94,23 @@ def _list_example(dotted: str, default: list, from_set: bool) -> str:
     return f"e.g. --set '{dotted}=[{','.join(text)}]' or --set {dotted}={bare}"
 
 
+# Keys a config.toml written by an earlier kosmap may hold: (section, key) → (the value that changes nothing, why the
+# key went). That value is dropped; any other is refused with the reason.
+RETIRED = {("fspf", "backend"): ("numba", "the compiled kernels are FSPF's only backend (the numpy reference is "
+                                          "tools/fspf_numpy.py, for benchmarks)")}
+
+
+def _without_retired(name: str, values: dict[str, Any]) -> dict[str, Any]:
+    kept = {}
+    for key, value in values.items():
+        if (name, key) not in RETIRED:
+            kept[key] = value
+        elif value != RETIRED[name, key][0]:
+            raise ConfigError(f"config [{name}] {key} = {value!r} is no longer a setting: {RETIRED[name, key][1]}; "
+                              f"drop the key")
+    return kept
+
+
 def _section(name: str, values: dict[str, Any], where: str, from_set: frozenset[str] | set[str] = frozenset()):
     cls = SECTIONS.get(name)
     if cls is None:
@@ -101,6 +118,7 @@ def _section(name: str, values: dict[str, Any], where: str, from_set: frozenset[
     if not isinstance(values, dict):
         raise ConfigError(f"{where}: [{name}] must be a table of keys")
     known = {f.name for f in dataclasses.fields(cls)}
+    values = _without_retired(name, values)
     for key in values:
         if key not in known:
             raise ConfigError(f"{where}: unknown key [{name}] {key}; known keys are {', '.join(sorted(known))}")

@@ -94,3 +94,13 @@ def test_a_toml_file_gets_the_toml_syntax(tmp_path):
     with pytest.raises(ConfigError) as e:
         load_config(p)
     assert str(e.value) == "config [kos] levels = '0.3,0.75' must be a list, e.g. levels = [0.3, 0.75, 1.5] under [kos]"
+
+
+def test_a_config_toml_of_an_earlier_kosmap_still_loads_and_a_retired_choice_is_explained(tmp_path):
+    """[fspf] backend = "numba" (what earlier builds wrote into config.toml) changes nothing and is dropped; the numpy
+    backend, now a benchmark's reference only, is refused with the reason."""
+    old = tmp_path / "config.toml"
+    old.write_text('[fspf]\nbackend = "numba"\nn_min = 60\n')
+    assert load_config(old).fspf.n_min == 60
+    with pytest.raises(ConfigError, match=r"\[fspf\] backend = 'numpy' is no longer a setting: .*; drop the key"):
+        load_config(None, ["fspf.backend=numpy"])
