@@ -21,6 +21,7 @@ from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
 from kosmap.mapping.localize_config import LocalizeConfig
+from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round
 
 SEARCHING, TRACKING, LOST = 0, 1, 2  # per-pose status: not found yet, found, lost after having been found
 STATUS_NAMES = ("searching", "tracking", "lost")
@@ -132,6 +133,7 @@ class _Filter:
         self.restarted = False  # a gap in the scans or a wrong pose: the pose is searched for again
         self.bad_since: float | None = None  # log time since which the refined pose's readings pass through walls
         self.lost_since = -1
+        self.confirmed = False  # the window's global search has just confirmed a pose
         self.alphas = tuple(float(a) for a in cfg.odom_alpha)
         if len(self.alphas) != 4:
             from kosmap.frontend.errors import ConfigError
@@ -149,6 +151,22 @@ class _Filter:
         self.restarted = True
         self.lost_since = self.updates
         self.rec.w_slow = self.rec.w_fast = 0.0
+
+    def apply(self, v: Verdict) -> None:
+        """A search's verdict: a sure place replaces the set (particles round it, claimed now); otherwise particles
+        join the set round every place still in the running, so that none is lost to resampling."""
+        c = self.cfg
+        if v.claim:
+            self.parts = seed_round(v.poses[:1], np.array([c.max_particles]), 0.5 * c.search_fine, math.radians(2.0),
+                                    self.rng)
+            self.confirmed = True
+            self.rec.w_slow = self.rec.w_fast = 0.0
+        else:
+            alive = v.prob >= 1e-3
+            extra = seed_round(v.poses[alive], np.full(int(alive.sum()), c.min_particles), c.search_fine,
+                               math.radians(2.0), self.rng)
+            self.parts = np.concatenate((self.parts, extra))
+        self.w = np.full(len(self.parts), 1.0 / len(self.parts))
 
     def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
         self.parts = mcl.sample_motion_odometry(self.parts, u0, u1, self.alphas, self.rng)
@@ -194,6 +212,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
     flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float))
+    ws = WindowSearch(f, cfg) if inp.has_odom and initial_pose is None else None
     n = len(inp.stamps_ns)
     out = {k: np.zeros(n) for k in ("sx", "sy", "share", "score", "inl", "np", "ratio")}
     poses = np.zeros((n, 3))
@@ -212,6 +231,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         gap = i > 0 and inp.stamps[i] - inp.stamps[i - 1] > cfg.max_gap_s
         if gap:
             flt.restart()
+            if ws is not None:  # the window is kept (the wheel odometry bridges the gap; were the robot carried
+                ws.sure = None  # meanwhile, it fits nowhere), but the place must be found sure twice anew
         if inp.has_odom:
             d = se2.between(u_last, u)
             update = i == 0 or gap or math.hypot(d[0], d[1]) >= cfg.update_min_d or abs(d[2]) >= min_a
@@ -226,6 +247,14 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             t_last = inp.stamps[i]
             flt.measure(pts)
             est = mcl.estimate(flt.parts, flt.w)
+            if ws is not None:
+                ws.window.add(u, pts)
+                if not flt.tracking and ws.due():
+                    flt.apply(ws.search(flt.z_max))
+                    est = mcl.estimate(flt.parts, flt.w)
+                elif flt.tracking and ws.check_due() and ws.check(flt.z_max, est.pose if tracked is None else tracked):
+                    flt.restart()  # carried: the next search, due now, claims the checks' place if sure again
+                    tracked = None
             if cfg.mcap_particles:
                 k = min(cfg.mcap_particles, len(flt.parts))
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
@@ -239,7 +268,12 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
         if update:
             flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0
-        converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
+        if ws is None:
+            converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
+        else:  # claimed first, and after a restart, only where the window's search confirms it
+            converged = (held and flt.tracking) or flt.confirmed or (
+                flt.found and not flt.restarted and flt.tight >= cfg.converged_updates)
+        flt.confirmed = False
         flt.tracking = converged
         if converged and not flt.found:
             flt.rec.w_slow = flt.rec.w_fast  # from here the long-term average is the tracking one, not the search's
@@ -267,6 +301,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 flt.bad_since = inp.stamps[i] if flt.bad_since is None else flt.bad_since
                 if inp.stamps[i] - flt.bad_since >= cfg.lost_through_s:
                     flt.restart()
+                    ws.reset() if ws is not None else None
                     flt.bad_since, tracked, status[i] = None, None, LOST
             else:
                 flt.bad_since = None
