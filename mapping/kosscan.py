@@ -23,6 +23,7 @@ from kosmap.frontend.logs import detect_topics, open_log
 from kosmap.frontend.records import Transform
 from kosmap.mapping.config import Config, write_config
 from kosmap.mapping.kosstream import KosStep, ScanRun, kos_steps
+from kosmap.mapping.lasercal import KosLaserCal, write_mount_toml
 from kosmap.mapping.mapio import save_figure
 from kosmap.mapping.runtime.outdir import check_out, writing
 
@@ -69,7 +70,15 @@ def run_scan(log_path: Path, out: Path, cfg: Config, *, figures: int = 3, limit:
         return _scan_into(log_path, stage, cfg, figures, limit, on_progress)
 
 
-SCAN_FILES = ("config.toml", "kos.mcap", "scan_points.csv", "kos_top_*.png", "summary.json")  # what a scan writes
+def laser_alignment(cal: KosLaserCal, run: ScanRun, out: Path) -> dict | None:
+    """The camera's yaw and x, y against the laser (mapping/lasercal.py), its warning into the run's, the whole
+    mount in out/mount.toml."""
+    res = cal.result(next(iter(run.mounts.values()))) if len(run.mounts) == 1 else None
+    write_mount_toml(out, res, run.warnings)
+    return res
+
+
+SCAN_FILES = ("config.toml", "kos.mcap", "scan_points.csv", "kos_top_*.png", "summary.json", "mount.toml")  # what a scan writes
 
 
 def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int | None,
@@ -96,7 +105,10 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
                 if on_progress is not None:
                     on_progress(len(fspf_ms), run.total_frames)
 
+            cal = KosLaserCal(cfg.kos.bands(), 0)
             for step in kos_steps(log_path, cfg, run, limit=limit, on_frame=on_frame):
+                cal.cameras = len(run.topics["depth"])
+                cal.add(step.scans, step.laser, run.statics)
                 while statics_written < len(run.statics):
                     writer.write(run.statics[statics_written], "/tf_static")
                     statics_written += 1
@@ -122,6 +134,7 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
         why = run.warnings[0].removeprefix(Path(log_path).name + ": ") if run.warnings else "no depth frame could be read"
         raise LogError(f"{Path(log_path).name}: no depth frame gave a KOS scan: {why}")
     csv_tmp.replace(out / "scan_points.csv")
+    run.laser_alignment = laser_alignment(cal, run, out)
     for i, step in enumerate(figure_steps):
         _figure(out / f"kos_top_{i}.png", step, run.laser_mount, levels, figure_steps[0].stamp_ns)
     summary = {
@@ -133,6 +146,7 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
         "kos_ms_median": float(np.median(kos_ms)) if kos_ms else None,
         "filled_fraction": {k: float(np.mean(v)) if v else 0.0 for k, v in fill.items()},
         "fused": run.laser_mount is not None, "gravity": run.gravity.as_dict() if run.gravity else None,
+        "laser_alignment": run.laser_alignment,
         "warnings": run.warnings,
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -89,6 +89,8 @@ class ScanRun:
     warnings: list[str] = field(default_factory=list)
     total_frames: int = 0
     gravity: GravityMount | None = None  # where gravity came from and the mounts it gave
+    mounts: dict[str, Transform] = field(default_factory=dict)  # per depth topic, the mount its frames used
+    laser_alignment: dict | None = None  # the camera's yaw and x, y against the laser (mapping/lasercal.py)
 
 
 class KosStream:
@@ -150,6 +152,7 @@ class KosStream:
         run, cfg = self.run, self.cfg
         if item.topic not in self.cams:
             self.cams[item.topic] = (item.camera, item.mount)
+            run.mounts[item.topic] = item.mount
             if run.bearings is None:
                 # the grid of bins is fixed by the first frame: one camera's view, or a full circle for several
                 if len(self.det.depth) == 1:

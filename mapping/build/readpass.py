@@ -33,6 +33,7 @@ from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, 
 from kosmap.mapping.build.spill import Spill
 from kosmap.mapping.config import Config
 from kosmap.mapping.gravitymount import resolve_gravity
+from kosmap.mapping.lasercal import KosLaserCal
 from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun
 from kosmap.mapping.runtime.framepool import FramePool
 from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns
@@ -159,6 +160,7 @@ class ReadPass:
         self.laser_period = laser_period(bcfg.laser_rate, src.counts.get(det.scan, 0), src.duration) if det.scan else 0
         self.cloud_period = int(bcfg.mcap_planes_period * 1e9)
         self.run = ScanRun()
+        self.lasercal = KosLaserCal(cfg.kos.bands(), len(src.det.depth))  # the camera's yaw and x, y against the laser
         self.total = src.expected_units(bcfg)
         self.stream: KosStream | None = None
         self.writer = None
@@ -203,6 +205,8 @@ class ReadPass:
         os.replace(csv_path, self.out / "stats.csv")
         self.warnings.extend(self.run.warnings)
         self._spill_kos_meta()
+        if len(self.run.mounts) == 1:
+            self.run.laser_alignment = self.lasercal.result(next(iter(self.run.mounts.values())))
         t0, t = self.t0, max((x for x in (self.t, self.end) if x is not None), default=None)
         return ReadResult(self.spill, self.frames, self.laser_kept, self.laser_seen, self.partial,
                           time.perf_counter() - t_begin, time.process_time() - cpu0,
@@ -293,6 +297,7 @@ class ReadPass:
         """A time step's KOS scans: every band to the spill, the SLAM scan to its feed, the fused scan (at the
         laser's rate) to the spill."""
         spill, bcfg = self.spill, self.bcfg
+        self.lasercal.add(step.scans, step.laser, self.statics)
         ranges = np.stack([step.scans[b].ranges for b in spill.bands])
         spill.kos.add(step.stamp_ns, ranges)
         sc = step.scans[bcfg.slam_scan]

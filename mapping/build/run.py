@@ -23,6 +23,7 @@ from kosmap.mapping.build.readpass import LogSources, Progress, ReadPass, ReadRe
 from kosmap.mapping.build.slams import kos_slam_configs, solve_slams, start_slams
 from kosmap.mapping.config import Config, write_config
 from kosmap.mapping.jsonsafe import json_safe
+from kosmap.mapping.lasercal import write_mount_toml
 from kosmap.mapping.mapio import read_blueprint
 from kosmap.mapping.report import frames_figure, trajectory_figure, write_report
 from kosmap.mapping.runtime.framepool import FramePool, check_workers, default_workers, executor_peak_rss_mb, peak_rss_mb
@@ -32,7 +33,7 @@ from kosmap.mapping.runtime.slamproc import RemoteFeed
 
 OUTPUTS = ("metrics.json", "report.html", "report.md", "map_*.png", "map_*.pgm", "map_*.yaml", "overlay_*.png",
            "trajectory_*.tum", "ground_truth.tum", "odometry.tum", "stats.csv", "kosmap.mcap", "summary.png",
-           "frames.png", "trajectories.png")  # what a build writes into its folder (removed first when present)
+           "frames.png", "trajectories.png", "mount.toml")  # what a build writes into its folder (removed first when present)
 BUILD_FILES = OUTPUTS + ("config.toml",)  # and its effective config: mapping/runtime/outdir.py tells ours from the user's
 
 
@@ -105,6 +106,7 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         rss = {"after_read": peak_rss_mb()}
         if read.run.gravity is not None:
             say("\n".join(read.run.gravity.lines()))
+        files |= write_mount_toml(out, read.run.laser_alignment, warnings, say)
         say(("interrupted: mapping what was read, " if read.partial else "")
             + f"{read.frames} depth frames, {read.laser_kept} laser scans read in {read.seconds:.1f} s")
         t_slam = time.perf_counter()
@@ -129,8 +131,10 @@ def build(log: str | Path, out_dir: str | Path, cfg: Config | None = None, bluep
         metrics = build_metrics(log, src, read, results, maps, comparisons, overlays, cfg, blueprint, workers, warnings,
                                 Timing(read.seconds, slam_finish_s, maps_s, compare_s))
         metrics = _renamed(metrics, str(out), str(final_out))  # the files' paths as they will be once in place
-        # where the depth cameras' gravity came from, and the mounts it gave (mapping/gravitymount.py)
+        # where the depth cameras' gravity came from, and the mounts it gave (mapping/gravitymount.py); the camera's
+        # yaw and x, y against the laser (mapping/lasercal.py)
         metrics["gravity"] = read.run.gravity.as_dict() if read.run.gravity is not None else None
+        metrics["laser_alignment"] = read.run.laser_alignment
         if blueprint_scale is not None:  # a plain-image blueprint: the report's trajectory figure reads it again
             metrics["sources"]["blueprint_scale"] = blueprint_scale
         metrics["memory"] = {"peak_rss_mb_main": rss, "peak_rss_mb_workers": jobs_rss,

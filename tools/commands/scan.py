@@ -54,5 +54,9 @@ def register(app: typer.Typer) -> None:
               + ("; fused with the laser" if s["fused"] else ""))
         if s.get("gravity"):
             print(f"gravity: {s['gravity']['from']}")
+        if s.get("laser_alignment"):
+            from kosmap.mapping.lasercal import KosLaserCal
+
+            print("\n".join(KosLaserCal.lines(s["laser_alignment"])) + f" ({out / 'mount.toml'})")
         for w in s["warnings"]:
             print(f"warning: {w}")
