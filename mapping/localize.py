@@ -221,6 +221,9 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     snaps: list[Snapshot] = []
     min_a = math.radians(cfg.update_min_a_deg)
     conv_yaw = math.radians(cfg.converged_yaw_deg)
+    conv_xy = cfg.converged_xy
+    if not inp.has_odom:  # a set diffused by the random walk at each update is at least that wide (√2 σ in x and y)
+        conv_xy = math.hypot(conv_xy, math.sqrt(2.0) * cfg.no_odom_sigma_xy * cfg.no_odom_period_s)
     est = mcl.estimate(flt.parts, flt.w)
     u_last = inp.odom[0] if inp.has_odom else None
     t_last = inp.stamps[0]
@@ -263,8 +266,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
         # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
         # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
-        whole = est.spread_xy <= cfg.converged_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
-        held = (est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and est.mode_xy <= cfg.converged_xy
+        whole = est.spread_xy <= conv_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
+        held = (est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and est.mode_xy <= conv_xy
                 and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
         if update:
             flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0

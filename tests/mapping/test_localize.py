@@ -101,8 +101,8 @@ def test_without_wheel_odometry_or_gyro_the_depth_camera_alone_finds_the_pose(ro
     m = _localize(bare, plan, tmp_path / "out", capsys)
     assert not m["run"]["wheel_odometry"] and not m["run"]["gyro"]
     loc, tr = m["localization"], m["truth"]["after_convergence"]
-    # measured (the first 40 s of this path): found at 10.1 s, then a median 0.15 m off (RMSE 0.26 m), lost 3 times
-    # and found again: a random walk between views instead of the odometry
+    # measured: found at 9.5 s, then a median 0.15 m off (RMSE 0.88 m: lost 5 times, the random walk between views
+    # instead of the odometry lets the set drift onto a look-alike corner for a while before it is found again)
     assert loc["converged_s"] is not None and loc["converged_s"] <= 20.0, loc
     assert tr["position_m"]["median"] <= 0.3, tr
 
