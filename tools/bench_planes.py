@@ -97,6 +97,11 @@ def _timed(fn):
     return out, (time.thread_time() - c0) * 1e3, (time.perf_counter() - w0) * 1e3
 
 
+# FSPF+ without the coherence test and region growing: the previous configuration, the baseline of their cost
+NO_EXTENSIONS = {"coherence": False, "grow": False}
+BASELINE = "fspf+ numba, no coherence/grow"
+EXTENSION_LIMIT = 1.5  # the coherence test and growing may cost at most this factor of the time without them
+
 # FSPF+ as the thesis has it: one plane per window, no merging, none of our rejection tests
 THESIS_MODE = {"planes_per_window": 1, "merge": False, "bend_max": 0.0, "min_width": 0.0, "tail_eps": 1.0}
 
@@ -159,7 +164,8 @@ def main(argv: list[str] | None = None) -> dict:
             base = time_pyransac(frames[: args.ransac_frames], eps, dcfg)
             results.append({"frames": set_name, "eps_mm": eps * 1e3, "method": "pyransac3d Plane.fit (100 it.)",
                             **base})
-            runs = [("fspf+", "numba", {}, "fspf+ numba"), ("fspf+", "numba", THESIS_MODE, "fspf+ numba, thesis mode"),
+            runs = [("fspf+", "numba", {}, "fspf+ numba"), ("fspf+", "numba", NO_EXTENSIONS, BASELINE),
+                    ("fspf+", "numba", THESIS_MODE, "fspf+ numba, thesis mode"),
                     ("fspf+", "numpy", {}, "fspf+ numpy"), ("fspf", "numba", {}, "fspf numba"),
                     ("fspf", "numpy", {}, "fspf numpy")]
             for method, backend, kw, label in runs:
@@ -208,6 +214,15 @@ def _markdown(out: dict) -> str:
             meth = r["method"].split()[0]
             ok = "met" if r["median_ms"] <= TARGETS_MS[meth] else "NOT met"
             lines.append(f"- {r['method']}: median {r['median_ms']:.2f} ms → target {TARGETS_MS[meth]} ms {ok}.")
+    lines += ["", f"Cost of the coherence test and region growing (default ÷ \"{BASELINE}\", the same frames and "
+              f"seeds in this run; limit {EXTENSION_LIMIT}×):"]
+    for r in out["results"]:
+        if r["method"] == "fspf+ numba":
+            base = next(b for b in out["results"] if b["method"] == BASELINE and b["frames"] == r["frames"]
+                        and b["eps_mm"] == r["eps_mm"])
+            ratio = r["median_ms"] / base["median_ms"]
+            lines.append(f"- {r['frames']}, ε = {r['eps_mm']:.0f} mm: {r['median_ms']:.2f} / {base['median_ms']:.2f} ms "
+                         f"= {ratio:.2f}× ({'within' if ratio <= EXTENSION_LIMIT else 'OVER'} the limit)")
     lines += ["", "filtered % = plane points (kept and dropped by class) per frame pixel; pyransac3d: its one "
               "plane's inliers. The numpy rows run the same algorithms without numba (docs/dependencies.md). \"thesis mode\" = "
               "FSPF+ as the thesis has it (one plane per window, no merging, no strip/bend/noise-tail tests); the "
