@@ -145,17 +145,29 @@ def global_search(sf: SearchField, pts: np.ndarray, keep: int, apart_xy: float, 
 def _distinct(cand: np.ndarray, score: np.ndarray, keep: int, apart_xy: float, apart_yaw: float) -> list[np.ndarray]:
     """The best-scoring poses, each at least apart_xy or apart_yaw from every better one kept (non-maximum
     suppression), at most `keep`."""
-    order = np.argsort(score)[::-1]
-    c = cand[order]
-    alive = np.ones(len(c), bool)
-    out: list[np.ndarray] = []
-    while len(out) < keep and alive.any():
-        k = int(np.argmax(alive))
-        out.append(c[k])
-        near = (np.hypot(c[:, 0] - c[k, 0], c[:, 1] - c[k, 1]) < apart_xy) & \
-               (np.abs(np.remainder(c[:, 2] - c[k, 2] + math.pi, 2 * math.pi) - math.pi) < apart_yaw)
-        alive &= ~near
-    return out
+    c = np.ascontiguousarray(cand[np.argsort(score)[::-1]], dtype=np.float64)
+    return list(c[_suppress(c, keep, apart_xy, apart_yaw)])
+
+
+@njit(cache=True)
+def _suppress(c, keep, apart_xy, apart_yaw):
+    """Indices (into c, best first) of the poses kept by non-maximum suppression."""
+    out = np.empty(keep, np.int64)
+    m = 0
+    for i in range(c.shape[0]):
+        ok = True
+        for k in range(m):
+            j = out[k]
+            dyaw = abs((c[i, 2] - c[j, 2] + math.pi) % (2 * math.pi) - math.pi)
+            if math.hypot(c[i, 0] - c[j, 0], c[i, 1] - c[j, 1]) < apart_xy and dyaw < apart_yaw:
+                ok = False
+                break
+        if ok:
+            out[m] = i
+            m += 1
+            if m >= keep:
+                break
+    return out[:m]
 
 
 def _free_at(sf: SearchField, poses: np.ndarray) -> np.ndarray:
