@@ -1,15 +1,24 @@
-"""Where numba keeps the compiled kernels: beside their source, else in the user's cache folder; where neither can be
-written (an install owned by another user, a service account without a home) numba refuses to import a module with a
-cached kernel at all, so a per-user folder in the temporary directory is named instead."""
+"""Where numba keeps the compiled kernels, in a folder named for the kernels' source.
+
+numba checks a cached kernel only against the time stamp of the file that defines it, not of the files its callees
+come from: a kernel inlining a helper of another module (FSPF+'s main loop and fspf_kernels.py, say) would keep
+running the helper's old code after that module changed. So the cache folder is named for a digest of kosmap's
+source (every module of the package), and a changed module means a fresh folder. The folder lies beside the source,
+else in the user's cache folder, else (an install owned by another user, a service account without a home) in a
+per-user folder in the temporary directory. A NUMBA_CACHE_DIR the user set is kept as it is."""
 
 from __future__ import annotations
 
+import hashlib
 import os
+import shutil
 import stat
 import tempfile
+import time
 from pathlib import Path
 
 _PACKAGE = Path(__file__).resolve().parent
+_SOURCE_FOLDERS = ("frontend", "backend", "mapping", "tools")  # kosmap's packages (pyproject.toml)
 
 
 def _writable(path: Path) -> bool:
@@ -21,17 +30,29 @@ def _writable(path: Path) -> bool:
     return path.is_dir() and os.access(path, os.W_OK | os.X_OK)
 
 
+def source_digest(package: Path = _PACKAGE) -> str:
+    """A digest of kosmap's modules (the package folders beside `package`, without tests): what the cached
+    kernels were compiled from."""
+    h = hashlib.sha1()
+    for folder in _SOURCE_FOLDERS:
+        for p in sorted((package.parent / folder).rglob("*.py")):
+            h.update(p.relative_to(package.parent).as_posix().encode())
+            h.update(p.read_bytes())
+    return h.hexdigest()[:12]
+
+
 def numba_cache_dir(environ: dict | os._Environ = os.environ, package: Path = _PACKAGE) -> str | None:
-    """The NUMBA_CACHE_DIR to set (None: numba's own places work, or the user chose one)."""
+    """The NUMBA_CACHE_DIR to set (None: the user chose one)."""
     if environ.get("NUMBA_CACHE_DIR"):
         return None
+    name = f"numba-{source_digest(package)}"
     if _writable(package / "__pycache__"):
-        return None
+        return str(package / "__pycache__" / name)
     home = environ.get("XDG_CACHE_HOME") or os.path.join(environ.get("HOME") or "/nonexistent", ".cache")
-    if _writable(Path(home) / "numba"):
-        return None
+    if _writable(Path(home) / "kosmap"):
+        return os.path.join(home, "kosmap", name)
     uid = os.getuid() if hasattr(os, "getuid") else 0
-    return os.path.join(tempfile.gettempdir(), f"kosmap-numba-cache-{uid}")
+    return os.path.join(tempfile.gettempdir(), f"kosmap-numba-cache-{uid}", name)
 
 
 def private_dir(path: str) -> str:
@@ -52,7 +73,16 @@ def private_dir(path: str) -> str:
 
 
 def ensure() -> None:
-    """Set NUMBA_CACHE_DIR when numba would find nowhere to cache; before numba is first imported."""
+    """Set NUMBA_CACHE_DIR (before numba is first imported) to the folder for this source, made private where it
+    lies in the shared temporary directory."""
     d = numba_cache_dir()
-    if d is not None:
-        os.environ["NUMBA_CACHE_DIR"] = private_dir(d)
+    if d is None:
+        return
+    parent = Path(d).parent
+    if parent.name.startswith("kosmap-numba-cache-"):
+        parent = Path(private_dir(str(parent)))
+    if parent == _PACKAGE / "__pycache__":  # this checkout's own: its earlier sources' kernels, unused for a day, go
+        for old in parent.glob("numba-*"):  # (not at once: a process still running the earlier source writes there)
+            if old.name != Path(d).name and time.time() - old.stat().st_mtime > 86400:
+                shutil.rmtree(old, ignore_errors=True)
+    os.environ["NUMBA_CACHE_DIR"] = str(parent / Path(d).name)

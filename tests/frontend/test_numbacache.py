@@ -1,4 +1,5 @@
-"""numba gets a cache folder it can write: beside the source, the user's cache, or one in the temp directory."""
+"""numba gets a cache folder it can write (beside the source, the user's cache, or one in the temp directory), named
+for the source it compiles: a change to any module, even one holding only a callee, means a fresh folder."""
 
 from __future__ import annotations
 
@@ -7,27 +8,51 @@ import os
 from kosmap.frontend.numbacache import numba_cache_dir
 
 
-def test_numbas_own_places_are_kept_when_writable(tmp_path):
-    pkg = tmp_path / "pkg"
-    pkg.mkdir()
-    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) is None
+def _package(root):
+    pkg = root / "frontend"
+    pkg.mkdir(parents=True)
+    (pkg / "kernels.py").write_text("def helper(x):\n    return x + 1\n")
+    (root / "tools").mkdir()
+    return pkg
+
+
+def test_the_folder_is_beside_the_source_and_named_for_it(tmp_path):
+    pkg = _package(tmp_path / "kosmap")
+    first = numba_cache_dir({"HOME": str(tmp_path)}, pkg)
+    assert first is not None and first.startswith(str(pkg / "__pycache__" / "numba-"))
+    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) == first  # the same source: the same folder
+    (tmp_path / "kosmap" / "tools" / "callee.py").write_text("X = 2\n")  # another module of the package changes
+    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) != first
     assert numba_cache_dir({"NUMBA_CACHE_DIR": "/somewhere"}, pkg) is None  # the user's choice stands
 
 
-def test_an_install_the_user_cannot_write_gets_a_temp_folder(tmp_path, monkeypatch):
+def test_an_install_the_user_cannot_write_gets_the_users_cache_or_a_temp_folder(tmp_path, monkeypatch):
     ro = tmp_path / "readonly"
-    (ro / "pkg").mkdir(parents=True)
+    pkg = _package(ro / "kosmap")
     home = tmp_path / "home"
     home.mkdir()
     real = os.access
     monkeypatch.setattr(os, "access", lambda p, mode: False if str(p).startswith(str(ro)) else real(p, mode))
-    assert numba_cache_dir({"HOME": str(home)}, ro / "pkg") is None  # ~/.cache/numba can be made
-    d = numba_cache_dir({"HOME": "/nonexistent"}, ro / "pkg")  # a service account: no home either
-    if os.access("/", os.W_OK):  # (root may write at / : then numba's user-wide folder would work)
-        assert d is None
+    assert numba_cache_dir({"HOME": str(home)}, pkg).startswith(str(home / ".cache" / "kosmap" / "numba-"))
+    d = numba_cache_dir({"HOME": "/nonexistent"}, pkg)  # a service account: no home either
+    if os.access("/", os.W_OK):  # (root may write at / : then /nonexistent/.cache can be made)
+        assert d.startswith("/nonexistent/.cache/kosmap/numba-")
     else:
-        assert d is not None and "kosmap-numba-cache" in d
-    assert numba_cache_dir({"HOME": str(ro)}, ro / "pkg") is not None  # a home it cannot write
+        assert "kosmap-numba-cache-" in d
+    assert "kosmap-numba-cache-" in numba_cache_dir({"HOME": str(ro)}, pkg)  # a home it cannot write
+
+
+def test_kosmap_sets_the_folder_for_its_source_before_numba_is_imported():
+    import subprocess
+    import sys
+
+    from kosmap.frontend.numbacache import source_digest
+
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    code = "import os, sys, kosmap.frontend; print(os.environ['NUMBA_CACHE_DIR'], 'numba' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True).stdout
+    folder, numba_imported = out.split()
+    assert folder.endswith(f"numba-{source_digest()}") and numba_imported == "False"
 
 
 def test_the_temp_folder_is_private_and_one_another_user_could_have_planted_is_not_used(tmp_path):
