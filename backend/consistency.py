@@ -21,16 +21,26 @@ from kosmap.frontend import se2
 REVISIT_S = 30.0  # a scan is compared with the scans taken at least this long before it
 REVISIT_RADIUS = 0.5  # m: a point with no earlier point this near sees something new (not compared)
 MIN_POINTS = 20  # a keyframe is a revisit when at least this many of its points have an earlier neighbour
-# How much of a revisiting keyframe's misfit to the earlier walls one rigid move explains (one point-to-line ICP
-# step). Measured, consistent maps: the synthetic ring 0.003 m median (90 %: 0.04 m), the simulated office with harsh
-# odometry 0.016 m (0.06 m; ATE 0.016 m); its first 100 s, before any loop, 0.053 m (0.09 m; ATE 0.018 m, max 0.11 m).
-# Bent by drift with loop closure off: the office 0.066 m (0.16 m; ATE 0.29 m). A map is called bent when the walls it
-# saw twice are doubled by more than a grid cell (0.05 m, [grid] resolution) beyond that noise.
-BENT_MEDIAN_M = 0.06
-BENT_P90_M = 0.15
+# A map is called bent when the walls it saw twice are doubled by more than its grid can hide, beyond what the
+# scans' own noise lets one rigid step resolve. Per revisiting keyframe the misfit (how much of its misalignment to the
+# earlier walls one point-to-line ICP step explains; only the directions its walls fix count) is set against its
+# tolerance: a grid cell (CELL_M, the default [grid] resolution) plus the misfit the rigid step finds in the points'
+# noise alone, at 99 % (χ² with 3 degrees of freedom, NOISE_CHI2): σ·√(NOISE_CHI2 / n) for n compared points whose
+# scatter about their lines is σ (the new scan's and the earlier ones', each measured on the scan itself,
+# `scan_noise`: a narrow depth scan's noise grows with range², a laser's is ~1 cm). The map is bent when the median
+# revisit is off by more than its tolerance, or the worst tenth by more than BENT_P90_CELLS tolerances (a stretch of
+# the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.08 m) median 0.005–0.04
+# m, 90 % 0.01–0.05 m; bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median
+# 0.14–0.31 m, 90 % 0.27–0.37 m (docs/benchmarks.md).
+CELL_M = 0.05
+NOISE_CHI2 = 11.34  # χ²₃ at 99 %: the rigid step's three parameters fitted to noise
+BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by three grid cells over a stretch)
 # Or when the solution disagrees with many of its own loops: at least this share of them (and 3) off by more than
-# twice the loop factor's σ (a consistent synthetic ring: none of 114; a wrong loop without a robust kernel: 19 %).
+# their own covariance allows (the loop factor's, as the graph holds it: loose along a corridor's axis where the match
+# did not fix it) at 99 % (χ² with 2 degrees of freedom on the translation, LOOP_CHI2). A consistent synthetic ring:
+# none of 114; a wrong loop without a robust kernel: 19 %.
 BENT_LOOP_SHARE = 0.10
+LOOP_CHI2 = 9.21  # χ²₂ at 99 %
 KEEP_POINTS = 96  # points kept per keyframe for the check (every k-th of the scan)
 
 
@@ -45,8 +55,10 @@ class Consistency:
     loops: int
     loop_residual_median_m: float
     loop_residual_max_m: float
-    loops_disagreeing: int  # loops the solution misses by more than twice their σ
+    loops_disagreeing: int  # loops the solution misses by more than their covariance allows (99 %)
     bent: bool
+    tolerance_m: float = float("nan")  # the median revisit's tolerance: a grid cell + what the scans' noise hides
+    scan_noise_m: float = float("nan")  # the median keyframe's scatter about its own lines (scan_noise)
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -58,13 +70,42 @@ def keep_points(points: np.ndarray, n: int = KEEP_POINTS) -> np.ndarray:
     return p[:: max(1, math.ceil(len(p) / n))].copy()
 
 
+@dataclass
+class LoopCheck:
+    """One loop factor after the solve: how far the solution is from it (x, y, yaw; pose of the solution's b in the
+    loop's measured b) and the factor's covariance (3×3, in b's frame)."""
+
+    error: np.ndarray
+    cov: np.ndarray
+
+    def missed(self) -> bool:
+        """The solution misses the loop by more than its own covariance allows (translation, χ²₂ at 99 %)."""
+        e = np.asarray(self.error, float)[:2]
+        return float(e @ np.linalg.solve(np.asarray(self.cov, float)[:2, :2], e)) > LOOP_CHI2
+
+
+def loop_checks(graph) -> list[LoopCheck]:
+    """The loop factors of a solved backend.graph.PoseGraph, each with its own covariance (the full one the loop
+    closer gave, else its σ)."""
+    out = []
+    for e in graph.edges:
+        if e.kind == "loop":
+            err = se2.between(e.measurement, se2.between(graph.est[e.a], graph.est[e.b]))
+            cov = np.asarray(e.cov, float) if e.cov is not None else np.diag(np.asarray(e.sigmas, float) ** 2)
+            out.append(LoopCheck(np.asarray(err, float), cov))
+    return out
+
+
 def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.ndarray],
-                loop_residuals: list[float] | None = None, loop_sigma: float = 0.05) -> Consistency:
+                loops: list[LoopCheck] | None = None) -> Consistency:
     """The figure for keyframes at times `key_t_s` (s), solved poses `key_poses` (N×3) and their kept points
-    (base_link); `loop_residuals`: the loops' translation residuals (m) after the solve."""
+    (base_link, in beam order); `loops`: the loop factors after the solve (loop_checks)."""
     t = np.asarray(key_t_s, float)
     world = [se2.transform_points(p, np.asarray(q, float)) for p, q in zip(key_poses, key_points)]
+    noise = np.array([scan_noise(q) for q in key_points])
+    nz = np.nan_to_num(noise)  # a scan too short to measure: no noise allowance
     per_kf = np.full(len(t), np.nan)
+    tol = np.full(len(t), np.nan)
     order = np.argsort(t)
     tree, tree_until = None, -1
     for i in order:
@@ -80,6 +121,7 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
             pts = np.vstack([world[j] for j in olds]) if olds else np.zeros((0, 2))
             seen_from = (np.vstack([np.repeat(np.asarray(key_poses[j][:2], float)[None], len(world[j]), 0) for j in olds])
                          if olds else np.zeros((0, 2)))
+            old_noise = np.concatenate([np.full(len(world[j]), nz[j]) for j in olds]) if olds else np.zeros(0)
             tree, tree_until = (cKDTree(pts), n_old) if len(pts) >= 2 else (None, -1)
         if tree is None:
             continue
@@ -91,20 +133,45 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
         if same.sum() < MIN_POINTS:
             continue
         per_kf[i] = _misalignment(world[i][ok][same], a_[same], b_[same], key_poses[i][:2])
-    rv = per_kf[np.isfinite(per_kf)]
-    res = np.asarray(loop_residuals or [], float)
-    if len(rv):
-        med, p90 = float(np.median(rv)), float(np.percentile(rv, 90))
+        sigma = math.sqrt(nz[i] ** 2 + float(np.median(old_noise[idx[ok, 0]][same])) ** 2)
+        tol[i] = CELL_M + sigma * math.sqrt(NOISE_CHI2 / int(same.sum()))
+    rv = np.isfinite(per_kf)
+    checks = list(loops or [])
+    res = np.array([math.hypot(*c.error[:2]) for c in checks])
+    if rv.any():
+        med, p90 = float(np.median(per_kf[rv])), float(np.percentile(per_kf[rv], 90))
+        ratio = per_kf[rv] / tol[rv]
         w = int(np.nanargmax(per_kf))
         worst, worst_t = float(per_kf[w]), float(t[w] - t.min())
+        med_tol = float(np.median(tol[rv]))
     else:
-        med = p90 = worst = worst_t = float("nan")
-    off = int(np.sum(res > 2 * loop_sigma))
-    bent = bool((len(rv) >= 5 and (med > BENT_MEDIAN_M or p90 > BENT_P90_M))
-                or (off >= 3 and off >= BENT_LOOP_SHARE * len(res)))
-    return Consistency(int(len(rv)), int(len(t)), med, p90, worst, worst_t, int(len(res)),
+        med = p90 = worst = worst_t = med_tol = float("nan")
+        ratio = np.zeros(0)
+    off = sum(c.missed() for c in checks)
+    bent = bool((len(ratio) >= 5 and (np.median(ratio) > 1.0 or np.percentile(ratio, 90) > BENT_P90_CELLS))
+                or (off >= 3 and off >= BENT_LOOP_SHARE * len(checks)))
+    return Consistency(int(rv.sum()), int(len(t)), med, p90, worst, worst_t, len(checks),
                        float(np.median(res)) if len(res) else float("nan"), float(res.max()) if len(res) else float("nan"),
-                       off, bent)
+                       int(off), bent, med_tol, float(np.nanmedian(noise)) if np.isfinite(noise).any() else float("nan"))
+
+
+def scan_noise(points: np.ndarray, max_gap: float = REVISIT_RADIUS) -> float:
+    """A scan's scatter (m, σ) about its own lines, measured on the scan itself: the second difference of three
+    consecutive points (in beam order) across the chord of the outer two is 0 on a straight wall and has variance 6σ²
+    from the middle point's and its neighbours' noise; the median absolute value over the scan (corners and edges are
+    its outliers), as σ. Triples across a gap over `max_gap` are skipped; nan below 5 triples."""
+    p = np.asarray(points, float)
+    if len(p) < 7:
+        return float("nan")
+    chord = p[2:] - p[:-2]
+    L = np.linalg.norm(chord, axis=1)
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    ok = (np.maximum(step[:-1], step[1:]) <= max_gap) & (L > 1e-6)
+    if ok.sum() < 5:
+        return float("nan")
+    n = np.column_stack((-chord[ok, 1], chord[ok, 0])) / L[ok, None]
+    dev = np.einsum("ij,ij->i", p[:-2][ok] - 2 * p[1:-1][ok] + p[2:][ok], n)
+    return float(1.4826 * np.median(np.abs(dev)) / math.sqrt(6.0))
 
 
 def _same_side(a: np.ndarray, b: np.ndarray, c_old: np.ndarray, c_new: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -148,8 +215,8 @@ def warning(c: Consistency) -> str | None:
     """The console/report line when the map is likely bent, else None."""
     if not c.bent:
         return None
-    loops = (f"; the solution misses {c.loops_disagreeing} of its {c.loops} loops by more than twice their σ"
+    loops = (f"; the solution misses {c.loops_disagreeing} of its {c.loops} loops by more than their covariance allows"
              if c.loops_disagreeing else "")
     return (f"the map is likely bent: where the robot came back, its scans lie a median {c.median_m:.3f} m "
             f"(90 % within {c.p90_m:.2f} m) off the earlier ones, the worst {c.worst_m:.2f} m at t = {c.worst_t_s:.0f} s "
-            f"(a consistent map: a few mm to 2 cm){loops}")
+            f"(the tolerance: {c.tolerance_m:.3f} m, a grid cell and what the scans' noise hides){loops}")

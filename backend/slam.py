@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from kosmap.backend.consistency import consistency, keep_points
+from kosmap.backend.consistency import consistency, keep_points, loop_checks
 from kosmap.backend.consistency import warning as consistency_warning
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.imu import GyroBuffer
@@ -329,7 +329,7 @@ class Slam:
                                 self.graph.solver_notes)
         health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
         con = consistency((np.array([k.stamp_ns for k in self.keyframes]) - stamps[0]) * 1e-9, self.graph.est,
-                          self.key_points, [r[1] for r in self.graph.loop_residuals()], self.gcfg.loop_sigma_xy)
+                          self.key_points, loop_checks(self.graph))
         bent = consistency_warning(con)
         health += [bent] if bent else []
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),
