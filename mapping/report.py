@@ -373,8 +373,9 @@ def _slam_blocks(m: dict, traj_png: Path | None) -> list[tuple]:
                             "front end alone (m)", "wheel odometry (m)", "self-consistency", "SLAM time (s)"], rows))
         B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how "
                        "far one rigid move brings its scans onto the earlier ones' walls (median, and 90th percentile), and how "
-                       "many loops the solution misses by more than twice their σ; a consistent map: a few mm to 2 cm "
-                       "(backend/consistency.py)."))
+                       "many loops the solution misses by more than their own covariance allows; a map is likely bent when "
+                       "its revisits are off by more than a grid cell plus what the scans' own noise hides "
+                       "(backend/consistency.py, docs/consistency.md)."))
         if not src["ground_truth"]:
             B.append(("p", "The log has no ground truth (/ground_truth/odom): no ATE."))
     return B
