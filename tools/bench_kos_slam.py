@@ -13,7 +13,9 @@ final solve (not fed back to the front end while running); without the IMU; with
 fixed; with the IMU but the gyro bias left in the noise. Truths (odometry distance scale, gyro turn-on bias) come from the simulator's
 MCAP metadata (tools.simulate.log.simulation_truth). `--laser` also runs laser SLAM on logs that have a laser.
 `--harsh` adds (simulated once into --cache) the office and the long-corridor world (tools/simulate/worlds/corridors.yaml)
-with harsh but ordinary wheel odometry: 2 % and 2.8 % wheel radius errors and a 0.3°/m heading bias (HARSH).
+with harsh but ordinary wheel odometry: 2 % and 2.8 % wheel radius errors and a 0.3°/m heading bias (HARSH), for
+each of --seeds. `--configs ... "imu, front end free along-track"` also replays the front-end alternative (not a
+default: it fixes the corridors' odometry scale and biases the office's, see docs/bench/kos_slam.md).
 Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
 """
 
@@ -40,6 +42,10 @@ CONFIGS = {
     "no imu": {"imu": False},
     "imu, scale fixed": {"odom_scale": "fixed"},
     "imu, bias fixed": {"gyro_bias": "fixed"},
+    # not the default, measured beside it: the KOS front end held along-track only where the scan's own surfaces
+    # leave that direction open (the laser's scan-geometry rule, frontend/odometry.py degeneracy_prior) instead
+    # of always (KOS_FRONTEND's prior_weight_along); the key "odometry" holds [odometry] overrides
+    "imu, front end free along-track": {"odometry": {"prior_weight_along": 100.0, "degenerate_ratio": 0.1}},
 }
 
 
@@ -116,8 +122,8 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     return doc
 
 
-def replay(doc: dict, rate: float, **graph) -> dict:
-    """SLAM on recorded inputs with [graph] overrides (over the KOS graph defaults); accuracy and calibration."""
+def replay(doc: dict, rate: float, odometry: dict | None = None, **graph) -> dict:
+    """SLAM on recorded inputs with [odometry] and [graph] overrides (over the KOS defaults); accuracy and calibration."""
     from kosmap.frontend.records import Odometry
     from kosmap.mapping import slam as S
     from kosmap.backend.kosprofile import kos_graph_config, kos_odometry_config
@@ -128,7 +134,7 @@ def replay(doc: dict, rate: float, **graph) -> dict:
     cfg = Config()
     cfg.build.depth_rate = rate
     gcfg = dataclasses.replace(kos_graph_config(cfg), **graph)
-    slam = Slam(kos_odometry_config(cfg), gcfg)
+    slam = Slam(dataclasses.replace(kos_odometry_config(cfg), **(odometry or {})), gcfg)
     has_imu = any(e[0] == "i" for e in doc["events"])
     feed = SlamFeed(slam, True, has_imu)
     period = int(1e9 / rate) - 10_000_000 if rate > 0 else 0
@@ -223,6 +229,14 @@ def markdown(res: list[dict], lasers: list[dict], meta: dict) -> str:
                 if r["odometry_scale"] is not None and r["truth"]["odometry_scale"]]
         out += ["", f"Acceptance (one front camera + IMU, {ok[0]['rate']:g} Hz, {len(ok)} seeds): worst ATE {worst:.3f} m "
                 f"(goal ≤ 0.10 m); scale error {', '.join(f'{e:.2f}' for e in serr)} % (goal ≤ 0.2 %)."]
+    if any(r["log"].startswith("harsh-corridors") for r in res):
+        out += ["", "The long-corridor world (harsh-corridors): its KOS error is the wheel odometry's scale, not a missing "
+                "loop. A ring closes whatever its scale, so loops cannot observe it; a narrow scan sees along a bare "
+                "corridor only at corners and rooms. Held along-track to the wheels always (the default front end), the "
+                "front end's matches repeat the scale it was given and the graph's estimate stays near it (compare "
+                "`scale` with `true scale`). Held only where the scan's own surfaces leave that direction open "
+                "(`front end free along-track`), the corners and rooms measure the scale in the corridors, but in the "
+                "office, where such frames are many, the free matches come out short and the scale too large."]
     return "\n".join(out) + "\n"
 
 
@@ -230,14 +244,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("logs", nargs="*", type=Path)
     ap.add_argument("--harsh", action="store_true", help="also the office and the corridor world with harsh wheel odometry")
+    ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="simulator seeds of the --harsh logs")
     ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
-    ap.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    ap.add_argument("--configs", nargs="+", default=[c for c in CONFIGS if "odometry" not in CONFIGS[c]], choices=list(CONFIGS))
     ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
     a = ap.parse_args()
     if a.harsh:
-        a.logs = list(a.logs) + harsh_logs(a.cache)
+        a.logs = list(a.logs) + [log for seed in a.seeds for log in harsh_logs(a.cache, seed)]
     if not a.logs:
         ap.error("give a log or --harsh")
     res, lasers = [], []
