@@ -30,9 +30,10 @@ MIN_POINTS = 20  # a keyframe is a revisit when at least this many of its points
 # scatter about their lines is σ (the new scan's and the earlier ones', each measured on the scan itself,
 # `scan_noise`: a narrow depth scan's noise grows with range², a laser's is ~1 cm). The map is bent when the median
 # revisit is off by more than its tolerance, or the worst tenth by more than BENT_P90_CELLS tolerances (a stretch of
-# the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.08 m) median 0.005–0.04
-# m, 90 % 0.01–0.05 m; bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median
-# 0.14–0.31 m, 90 % 0.27–0.37 m (docs/consistency.md).
+# the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.09 m) median 0.004–0.04
+# m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows 0.09 m apart, called bent; bent by
+# odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37 m
+# (docs/consistency.md).
 CELL_M = 0.05
 NOISE_CHI2 = 11.34  # χ²₃ at 99 %: the rigid step's three parameters fitted to noise
 BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by three grid cells over a stretch)
