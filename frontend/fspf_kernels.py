@@ -388,17 +388,15 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, 
         return False, nx, ny, nz, d
     # robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step edges among them do not count, and a sensor
     # that quantises depth (disparity steps: many zero differences) still shows its step
-    # the upper quartile as np.percentile has it (linear), without its compile time; a partition, not a sort
-    # (half the time on 512 values)
+    q = np.sort(noise[:nn])  # the upper quartile as np.percentile has it (linear), without its compile time
     pos = 0.75 * (nn - 1)
     lo = int(pos)
-    hi = min(lo + 1, nn - 1)
-    q = np.partition(noise[:nn], np.array([lo, hi]))
-    sigma = (q[lo] + (pos - lo) * (q[hi] - q[lo])) / (1.15 * np.sqrt(6.0))
+    sigma = (q[lo] + (pos - lo) * (q[min(lo + 1, nn - 1)] - q[lo])) / (1.15 * np.sqrt(6.0))
     if ss < m * (2.0 * sigma) ** 2:
         return False, nx, ny, nz, d
-    # hypotheses scored on ≤ 128 of the sample, as the window's own RANSAC (ransac_subset)
-    ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, min(m, 128), max_iter, state, ux, uy, uz, uidx)
+    # hypotheses scored on the whole sample (≤ 256): a box top is a small share of a bridging plane's inliers, and
+    # scoring on a subset of them picks a sub-plane that still bridges more often (docs/planes.md)
+    ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, m, max_iter, state, ux, uy, uz, uidx)
     if not ok:
         return False, nx, ny, nz, d
     cnt, ax, ay, az, ad = _inlier_fit_nb(tx, ty, tz, m, ax, ay, az, ad, eps / 3.0)
@@ -457,25 +455,28 @@ def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, 
 
 
 @njit(cache=True, error_model="numpy")
-def _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, W, bx, by, bz, bidx):
-    """≤ 256 of the plane's inliers among the window's na points, spread evenly over it: every step-th window point
-    (≤ ~2048 of them, in image order) is tested and every k-th inlier among those kept, with its flat pixel index.
-    Drawn before the inliers are taken, so that a plane the coherence test shrinks takes its inliers only once."""
-    step = max(1, na // 2048)
-    c = 0
-    for a in range(0, na, step):
-        if abs(nx * np.float64(wx[a]) + ny * np.float64(wy[a]) + nz * np.float64(wz[a]) + d) < eps:
-            c += 1
-    k = max(1, (c + 255) // 256)
+def _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W):
+    """Put a plane's points (out[start:n_out]) back into the window after its kept points; returns the new count."""
+    k = keep
+    for a in range(start, n_out):
+        wr[k], wc[k] = out_pix[a, 0], out_pix[a, 1]
+        wx[k], wy[k], wz[k] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+        st[out_pix[a, 0] * W + out_pix[a, 1]] = 2
+        k += 1
+    return k
+
+
+@njit(cache=True, error_model="numpy")
+def _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W):
+    """≤ 256 of a plane's points (out[start:n_out]), evenly strided, with their flat pixel indices."""
+    step = max(1, (n_out - start) // 256)
     nb = 0
-    i = 0
-    for a in range(0, na, step):
-        if abs(nx * np.float64(wx[a]) + ny * np.float64(wy[a]) + nz * np.float64(wz[a]) + d) < eps:
-            if i % k == 0 and nb < 256:
-                bx[nb], by[nb], bz[nb] = wx[a], wy[a], wz[a]
-                bidx[nb] = wr[a] * W + wc[a]
-                nb += 1
-            i += 1
+    for a in range(start, n_out, step):
+        if nb == 256:
+            break
+        bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
+        bidx[nb] = out_pix[a, 0] * W + out_pix[a, 1]
+        nb += 1
     return nb
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from kosmap.frontend.fspf_kernels import (_classify_nb, _curved_nb, _grow_nb, _inlier_fit_nb, _partition_nb, _randint,
-                                          _ransac_nb, _split_bridge_nb, _unmark_nb, _window_sample_nb)
+                                          _ransac_nb, _restore_nb, _split_bridge_nb, _stride_sample_nb, _unmark_nb)
 
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
@@ -119,32 +119,35 @@ def _scratch_nb(subset):
 @njit(cache=True, error_model="numpy")
 def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
                    stats):
-    """A plane's inliers out of the window (_partition_nb). With the coherence test on, a sample of its inliers is
-    tested first; a plane that is not one surface shrinks to its strongest sub-plane, which takes the inliers
-    instead. Returns (points kept in the window, inliers, n_out, the plane's class, whether that class is dropped)."""
+    """A plane's inliers out of the window (_partition_nb); with the coherence test on, a plane that is not one
+    surface shrinks to its strongest sub-plane and takes again. Returns (points kept in the window, inliers, n_out,
+    the plane's class, whether that class is dropped)."""
     wr, wc, wx, wy, wz = win
+    out_pix, out_pts, out_plane = out[0], out[1], out[2]
     bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise, mom = sc[4:]
     tail = max(prm.tail_eps, 1.0) * prm.eps
+    start = n_out
     dropped = drop[cls]
-    # tested before the inliers are taken (a shrunk plane takes its inliers once, no pass is undone), and the
-    # sub-plane once more: it may itself span two of several box tops at different heights
-    for _ in range(2 if prm.coherence and not dropped else 0):
-        nb = _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, W, bx, by, bz, bidx)
+    keep, n_in = 0, 0
+    for attempt in range(2):
+        keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
+                                                  st, lbl, n_pl, out_pix, out_pts, out_plane, n_out, mom)
+        stats[S_OUTLIERS] += n_tail
+        if attempt == 1 or not prm.coherence or dropped or n_in <= prm.n_min:
+            break
+        nb = _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W)
         split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, nx, ny, nz, d, prm.eps,
                                                      prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
                                                      noise, np.cos(np.radians(2.0)))
         if not split:
             break
         stats[S_SPLIT] += 1
+        na = _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W)
+        n_out = start
         nx, ny, nz, d = sx_, sy_, sz_, sd_
         cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
                            prm.ground_max_h)
         dropped = drop[cls]
-        if dropped:
-            break
-    keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W, st,
-                                              lbl, n_pl, out[0], out[1], out[2], n_out, mom)
-    stats[S_OUTLIERS] += n_tail
     return keep, n_in, n_out, cls, dropped
 
 
