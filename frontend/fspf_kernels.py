@@ -394,8 +394,8 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, 
     sigma = (q[lo] + (pos - lo) * (q[min(lo + 1, nn - 1)] - q[lo])) / (1.15 * np.sqrt(6.0))
     if ss < m * (2.0 * sigma) ** 2:
         return False, nx, ny, nz, d
-    # hypotheses scored on the whole sample (≤ 256): a box top is a small share of a bridging plane's inliers, and
-    # scoring on a subset of them picks a sub-plane that still bridges more often (docs/planes.md)
+    # hypotheses scored on the whole sample (≤ 256 points): a box top may be a small share of a bridging plane's
+    # inliers (docs/planes.md)
     ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, m, max_iter, state, ux, uy, uz, uidx)
     if not ok:
         return False, nx, ny, nz, d
