@@ -70,8 +70,10 @@ class KosLaserCal:
     @staticmethod
     def lines(res: dict) -> list[str]:
         """What the console says."""
+        xy = (f"x {res['x_m']:.3f} m, y {res['y_m']:.3f} m" if res["offset_determined"]
+              else "x, y not fixed by these walls (one direction only: the given x, y kept)")
         return [f"camera to laser ({res['steps']} steps, KOS {res['level']} against the laser): yaw "
-                f"{res['yaw_deg']:.2f}°, x {res['x_m']:.3f} m, y {res['y_m']:.3f} m (given: yaw {res['given_yaw_deg']:.2f}°, "
+                f"{res['yaw_deg']:.2f}°, {xy} (given: yaw {res['given_yaw_deg']:.2f}°, "
                 f"x {res['given_x_m']:.3f} m, y {res['given_y_m']:.3f} m; residual {100 * res['rms_m']:.1f} cm)"]
 
     @staticmethod

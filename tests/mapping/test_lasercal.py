@@ -58,6 +58,7 @@ def test_a_corridor_fixes_the_yaw_not_the_offset_and_scan_reports_it(tmp_path, c
     res = json.loads((tmp_path / "s" / "summary.json").read_text())["laser_alignment"]
     assert res["yaw_determined"] and abs(res["yaw_deg"] + 3.0) <= 0.3, res
     assert not res["offset_determined"] and res["normal_spread"] < 0.1  # walls seen one way
+    assert "x, y not fixed by these walls" in out  # the console gives no undetermined offset as a measurement
     toml = (tmp_path / "s" / "mount.toml").read_text()
     assert "mount_xyz = [0.100, 0.000, 1.000]" in toml and f"{res['yaw_deg']:.2f}]" in toml  # the given x, y kept
     assert "static_transform_publisher" in toml
