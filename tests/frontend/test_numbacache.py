@@ -1,5 +1,6 @@
 """numba gets a cache folder it can write (beside the source, the user's cache, or one in the temp directory), named
-for the source it compiles: a change to any module, even one holding only a callee, means a fresh folder."""
+for the source its kernels are compiled from: a change to a kernel's module, or to a module it imports (a callee, a
+constant), means a fresh folder; a change to a module no kernel reaches keeps the compiled kernels."""
 
 from __future__ import annotations
 
@@ -11,8 +12,12 @@ from kosmap.frontend.numbacache import numba_cache_dir
 def _package(root):
     pkg = root / "frontend"
     pkg.mkdir(parents=True)
-    (pkg / "kernels.py").write_text("def helper(x):\n    return x + 1\n")
+    (pkg / "kernels.py").write_text("from numba import njit\n\nfrom kosmap.tools import (\n    callee,\n)\n"
+                                    "from .consts import K\n\n\n@njit(cache=True)\ndef helper(x):\n    return x + K\n")
+    (pkg / "consts.py").write_text("K = 1\n")
     (root / "tools").mkdir()
+    (root / "tools" / "callee.py").write_text("X = 2\n")
+    (root / "tools" / "report.py").write_text("Y = 2\n")
     return pkg
 
 
@@ -21,8 +26,13 @@ def test_the_folder_is_beside_the_source_and_named_for_it(tmp_path):
     first = numba_cache_dir({"HOME": str(tmp_path)}, pkg)
     assert first is not None and first.startswith(str(pkg / "__pycache__" / "numba-"))
     assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) == first  # the same source: the same folder
-    (tmp_path / "kosmap" / "tools" / "callee.py").write_text("X = 2\n")  # another module of the package changes
-    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) != first
+    (tmp_path / "kosmap" / "tools" / "report.py").write_text("Y = 3\n")  # no kernel reaches it
+    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) == first
+    (tmp_path / "kosmap" / "tools" / "callee.py").write_text("X = 3\n")  # a kernel's module imports it
+    second = numba_cache_dir({"HOME": str(tmp_path)}, pkg)
+    assert second != first
+    (pkg / "consts.py").write_text("K = 2\n")  # a relative import of the kernel's module
+    assert numba_cache_dir({"HOME": str(tmp_path)}, pkg) not in (first, second)
     assert numba_cache_dir({"NUMBA_CACHE_DIR": "/somewhere"}, pkg) is None  # the user's choice stands
 
 
