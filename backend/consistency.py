@@ -22,19 +22,19 @@ from kosmap.frontend import se2
 REVISIT_S = 30.0  # a scan is compared with the scans taken at least this long before it
 REVISIT_RADIUS = 0.5  # m: a point with no earlier point this near sees something new (not compared)
 MIN_POINTS = 20  # a keyframe is a revisit when at least this many of its points have an earlier neighbour
-# A map is called bent when the walls it saw twice are doubled by more than its grid can hide, beyond what the
-# scans' own noise lets one rigid step resolve. Per revisiting keyframe the misfit (how much of its misalignment to the
-# earlier walls one point-to-line ICP step explains; only the directions its walls fix count) is set against its
-# tolerance: a grid cell (CELL_M, the default [grid] resolution) plus the misfit the rigid step finds in the points'
-# noise alone, at 99 % (χ² with 3 degrees of freedom, NOISE_CHI2): σ·√(NOISE_CHI2 / n) for n compared points whose
-# scatter about their lines is σ (the new scan's and the earlier ones', each measured on the scan itself,
-# `scan_noise`: a narrow depth scan's noise grows with range², a laser's is ~1 cm). The map is bent when the median
-# revisit is off by more than its tolerance, or the worst tenth by more than BENT_P90_CELLS tolerances (a stretch of
-# the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.09 m) median 0.004–0.04
-# m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows 0.09 m apart, called bent; bent by
-# odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37 m
-# (docs/consistency.md).
-CELL_M = 0.05
+# A map is called bent when the walls it saw twice are doubled by more than its grid can hide, beyond what the scans'
+# own noise lets one rigid step resolve. Per revisiting keyframe the misfit (how much of its misalignment to the earlier
+# walls one point-to-line ICP step explains; only the directions its walls fix count) is set against its tolerance: a
+# grid cell (the run's [grid] resolution, `cell`; CELL_M, its default, when none is given) plus the misfit the rigid
+# step finds in the points' noise alone, at 99 % (χ² with 3 degrees of freedom, NOISE_CHI2): σ·√(NOISE_CHI2 / n) for n
+# compared points whose scatter about their lines is σ (the new scan's and the earlier ones', each measured on the scan
+# itself, `scan_noise`: a narrow depth scan's noise grows with range², a laser's is ~1 cm). The map is bent when the
+# median revisit is off by more than its tolerance, or the worst tenth by more than BENT_P90_CELLS tolerances (a stretch
+# of the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.09 m) median
+# 0.004–0.04 m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows 0.09 m apart, called bent;
+# bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37
+# m (docs/consistency.md).
+CELL_M = 0.05  # m: the default [grid] resolution, when the run's is not given
 NOISE_CHI2 = 11.34  # χ²₃ at 99 %: the rigid step's three parameters fitted to noise
 BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by three grid cells over a stretch)
 # Or when the solution disagrees with more of its own loops than chance allows: each loop is missed when the
@@ -103,9 +103,10 @@ def loop_checks(graph) -> list[LoopCheck]:
 
 
 def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.ndarray],
-                loops: list[LoopCheck] | None = None) -> Consistency:
+                loops: list[LoopCheck] | None = None, cell: float = CELL_M) -> Consistency:
     """The figure for keyframes at times `key_t_s` (s), solved poses `key_poses` (N×3) and their kept points
-    (base_link, in beam order); `loops`: the loop factors after the solve (loop_checks)."""
+    (base_link, in beam order); `loops`: the loop factors after the solve (loop_checks); `cell`: the map's grid cell
+    (m, the run's [grid] resolution): walls doubled by less are one wall in the map."""
     t = np.asarray(key_t_s, float)
     world = [se2.transform_points(p, np.asarray(q, float)) for p, q in zip(key_poses, key_points)]
     noise = np.array([scan_noise(q) for q in key_points])
@@ -140,7 +141,7 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
             continue
         per_kf[i] = _misalignment(world[i][ok][same], a_[same], b_[same], key_poses[i][:2])
         sigma = math.sqrt(nz[i] ** 2 + float(np.median(old_noise[idx[ok, 0]][same])) ** 2)
-        tol[i] = CELL_M + sigma * math.sqrt(NOISE_CHI2 / int(same.sum()))
+        tol[i] = cell + sigma * math.sqrt(NOISE_CHI2 / int(same.sum()))
     rv = np.isfinite(per_kf)
     checks = list(loops or [])
     res = np.array([math.hypot(*c.error[:2]) for c in checks])

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from kosmap.backend.consistency import consistency, keep_points, loop_checks
+from kosmap.backend.consistency import CELL_M, consistency, keep_points, loop_checks
 from kosmap.backend.consistency import warning as consistency_warning
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.imu import GyroBuffer
@@ -77,7 +77,9 @@ class Slam:
     """Online core: `add_scan` per scan, `finish` for the batch solve and per-scan poses."""
 
     def __init__(self, odometry: OdometryConfig | None = None, graph: GraphConfig | None = None,
-                 keep_points: bool = False) -> None:
+                 keep_points: bool = False, map_cell: float = CELL_M) -> None:
+        """`map_cell`: the grid cell the map is drawn at ([grid] resolution), the consistency check's tolerance."""
+        self.map_cell = float(map_cell)
         self.ocfg = odometry or OdometryConfig()
         self.gcfg = graph or GraphConfig()
         self.frontend = make_odometry(self.ocfg)
@@ -329,7 +331,7 @@ class Slam:
                                 self.graph.solver_notes)
         health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
         con = consistency((np.array([k.stamp_ns for k in self.keyframes]) - stamps[0]) * 1e-9, self.graph.est,
-                          self.key_points, loop_checks(self.graph))
+                          self.key_points, loop_checks(self.graph), cell=self.map_cell)
         bent = consistency_warning(con)
         health += [bent] if bent else []
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),

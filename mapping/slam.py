@@ -58,7 +58,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         raise KosmapError(f"unknown source '{source}'; use laser or kos")
     t_start = time.perf_counter()
     ocfg: OdometryConfig = cfg.odometry
-    slam = Slam(ocfg, cfg.graph)
+    slam = Slam(ocfg, cfg.graph, map_cell=cfg.grid.resolution)
     kept: list[Scan] | None = [] if keep_scans else None
     warnings: list[str] = []
     with open_log(path, cfg.topics.on_damage) as log:
@@ -152,7 +152,7 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
         raise ConfigError(f"config [build] slam_scan = {name!r} is not a KOS scan of this config; choose one of {', '.join(bands)}")
     ocfg = kos_odometry_config(cfg)
     gcfg = kos_graph_config(cfg)
-    slam = Slam(ocfg, gcfg)
+    slam = Slam(ocfg, gcfg, map_cell=cfg.grid.resolution)
     kept: list[Scan] | None = [] if keep_scans else None
     warnings: list[str] = []
     gt_t: list[float] = []

@@ -122,10 +122,10 @@ def record(log: Path, rate: float, cache: Path) -> dict:
     return doc
 
 
-def replay(doc: dict, rate: float, odometry: dict | None = None, **graph) -> dict:
-    """SLAM on recorded inputs with [odometry] and [graph] overrides (over the KOS defaults); accuracy and calibration."""
+def replay_slam(doc: dict, rate: float, odometry: dict | None = None, **graph):
+    """KOS SLAM on recorded inputs with [odometry] and [graph] overrides (over the KOS defaults): the finished
+    SlamResult (its ground truth set from the recording) and the seconds the replay took."""
     from kosmap.frontend.records import Odometry
-    from kosmap.mapping import slam as S
     from kosmap.backend.kosprofile import kos_graph_config, kos_odometry_config
     from kosmap.backend.slam import Slam
     from kosmap.mapping.config import Config
@@ -134,7 +134,7 @@ def replay(doc: dict, rate: float, odometry: dict | None = None, **graph) -> dic
     cfg = Config()
     cfg.build.depth_rate = rate
     gcfg = dataclasses.replace(kos_graph_config(cfg), **graph)
-    slam = Slam(dataclasses.replace(kos_odometry_config(cfg), **(odometry or {})), gcfg)
+    slam = Slam(dataclasses.replace(kos_odometry_config(cfg), **(odometry or {})), gcfg, map_cell=cfg.grid.resolution)
     has_imu = any(e[0] == "i" for e in doc["events"])
     feed = SlamFeed(slam, True, has_imu)
     period = int(1e9 / rate) - 10_000_000 if rate > 0 else 0
@@ -154,8 +154,15 @@ def replay(doc: dict, rate: float, odometry: dict | None = None, **graph) -> dic
             feed.advance(ev[1])
     feed.advance(None)
     r = slam.finish()
-    secs = time.perf_counter() - t0
     r.ground_truth = doc["gt"]
+    return r, time.perf_counter() - t0
+
+
+def replay(doc: dict, rate: float, odometry: dict | None = None, **graph) -> dict:
+    """SLAM on recorded inputs with [odometry] and [graph] overrides (over the KOS defaults); accuracy and calibration."""
+    from kosmap.mapping import slam as S
+
+    r, secs = replay_slam(doc, rate, odometry, **graph)
     m = S.evaluate(r)
     s = S.summary(r)
     return {"ate": m["ate"]["rmse"], "ate_max": m["ate"]["max"], "ate_odometry": m.get("ate_odometry", {}).get("rmse"),

@@ -32,9 +32,9 @@ def start_slams(feeds: dict, src: LogSources, cfg: Config, kos_cfgs: tuple[Odome
     det = src.det
     use_odom = bool(det.odom) and cfg.odometry.use_wheel_odometry
     if src.has_depth:
-        feeds["kos"] = SlamFeed(Slam(*kos_cfgs), use_odom, bool(det.imu))
+        feeds["kos"] = SlamFeed(Slam(*kos_cfgs, map_cell=cfg.grid.resolution), use_odom, bool(det.imu))
     if src.has_laser:
-        feeds["laser"] = SlamFeed(Slam(cfg.odometry, cfg.graph), use_odom, bool(det.imu))
+        feeds["laser"] = SlamFeed(Slam(cfg.odometry, cfg.graph, map_cell=cfg.grid.resolution), use_odom, bool(det.imu))
     if workers > 0 and "fork" in mp.get_all_start_methods():
         for name in list(feeds):  # one at a time: a failed fork leaves the ones made in `feeds` to be closed
             feeds[name] = RemoteFeed(feeds[name], name)
