@@ -45,6 +45,16 @@ def plane_cloud(planes: Planes, n: int, seed: int) -> tuple[np.ndarray, np.ndarr
     return pts.copy(), cls  # (the points may be FSPF+'s scratch buffers)
 
 
+def surface_window(kos_cfg: KosConfig, fspf_cfg: FspfConfig) -> float:
+    """The KOS surface rule's window (frontend/kos.py KosAccumulator): the points of one plane lie within its noise
+    tail, ±tail_eps·ε of it (FSPF+; FSPF's error ε), so a bin's nearest surface spans 2·tail_eps·ε from its nearest
+    point. 0 (the nearest point) when [kos] nearest = "point"."""
+    if kos_cfg.nearest == "point":
+        return 0.0
+    eps = fspf_cfg.epsilon_m if fspf_cfg.method == "fspf+" else fspf_cfg.fspf_error_m
+    return 2.0 * fspf_cfg.tail_eps * eps
+
+
 def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos_cfg: KosConfig, bearings: Bearings,
               keep_planes: bool = False, cloud_points: int = 0) -> KosFrame:
     """FSPF+ (or FSPF) → KOS for one frame (thesis Alg. 3–7); `kos_cfg.source = "depth"` skips plane filtering.
@@ -59,7 +69,8 @@ def kos_frame(item: DepthItem, fspf_cfg: FspfConfig, depth_cfg: DepthConfig, kos
         pixels, n_points, planes = None, int(ok.sum()), None
         stats = FrameStats(pixels=item.depth.size, ineligible=int(item.depth.size - n_points), inliers=n_points)
     t1 = time.perf_counter()
-    acc = KosAccumulator(kos_cfg, bearings, depth_cfg.min_depth, depth_cfg.max_depth)
+    acc = KosAccumulator(kos_cfg, bearings, depth_cfg.min_depth, depth_cfg.max_depth,
+                         surface_window(kos_cfg, fspf_cfg))
     acc.add_depth(item.depth, item.camera, item.mount, pixels)  # per-pixel tables: no back-projection needed
     t2 = time.perf_counter()
     cloud = plane_cloud(planes, cloud_points, item.index) if cloud_points > 0 and planes is not None else None

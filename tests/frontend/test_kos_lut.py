@@ -21,11 +21,12 @@ DEPTH = DepthConfig()
 LEVELS = [0.3, 0.75, 1.5]
 
 
-def reference_and_image(frames, cfg, increment_deg=0.0, use_planes=True):
-    """(reference ranges, image-kernel ranges) of the frames [(depth, mount, seed)] merged on one bin grid."""
+def reference_and_image(frames, cfg, increment_deg=0.0, use_planes=True, window=0.0):
+    """(reference ranges, image-kernel ranges) of the frames [(depth, mount, seed)] merged on one bin grid;
+    `window` > 0: the surface rule (KosAccumulator)."""
     b = bearings_for([(CAM, m) for _, m, _ in frames], increment_deg)
-    ref = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth)
-    img = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth)
+    ref = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth, window)
+    img = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth, window)
     for depth, mount, seed in frames:
         lo, hi = camera_view(CAM, mount)
         if use_planes:
@@ -59,6 +60,24 @@ def test_image_kernel_equals_reference_bin_for_bin(use_planes):
                                    use_planes=use_planes)
     assert ref.shape[0] == len(LEVELS) + 1  # the levels and the obstacle scan
     assert_same_bins(ref, img)
+
+
+@pytest.mark.parametrize("use_planes", [True, False], ids=["planes", "depth"])
+def test_surface_rule_same_in_both_kernels_and_farther_than_the_nearest_point(use_planes):
+    """The surface rule (mean of the points within the window of the nearest) bin for bin in both kernels, over a
+    front and a rear camera; it lies beyond the nearest point (never nearer) and within the window of it."""
+    pose = (3.8, 2.5, 0.0)
+    rear = camera_mount(xyz=(-0.1, 0.0, 1.0), rpy=(0.0, 0.0, math.pi), frame_id="rear_optical")
+    frames = [frame(pose, camera_mount(), 2), frame(pose, rear, 3)]
+    cfg = KosConfig(levels=LEVELS)
+    ref, img = reference_and_image(frames, cfg, use_planes=use_planes, window=0.08)
+    near, _ = reference_and_image(frames, cfg, use_planes=use_planes)
+    ok = np.isfinite(ref) & np.isfinite(img)
+    np.testing.assert_array_equal(np.isfinite(ref), np.isfinite(near))
+    # the image kernel's ranges are float32 (a mean of float32 ranges: ≤ 0.1 mm), the reference's float64
+    assert np.abs(ref[ok] - img[ok]).max() <= 1e-4
+    assert (ref[ok] >= near[ok] - 1e-6).all() and (ref[ok] <= near[ok] + 0.08 + 1e-6).all()
+    assert np.median(ref[ok] - near[ok]) > 0.003  # a wall's nearest point lies 2–3 σ (mm to cm) short
 
 
 def test_image_kernel_equals_reference_pitched_with_wide_bins():

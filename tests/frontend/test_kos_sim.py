@@ -25,11 +25,11 @@ CAM = kinect_v2_model()
 OFFLINE = FspfConfig(analysed_fraction=0.99)
 
 
-def kos_at(pose, levels, mounts=None, seed=0, source="planes", fspf=None):
+def kos_at(pose, levels, mounts=None, seed=0, source="planes", fspf=None, nearest="surface"):
     """KOS scans (dict by level name) of the cameras at `mounts` on a robot at `pose` (noisy frames, seeded)."""
     mounts = mounts or [camera_mount()]
     fspf = fspf or OFFLINE
-    cfg = KosConfig(levels=levels, source=source)
+    cfg = KosConfig(levels=levels, source=source, nearest=nearest)
     cams = [(CAM, m) for m in mounts]
     b = bearings_for(cams)
     frames = []
@@ -93,6 +93,35 @@ def test_level_ranges_match_truth_and_fill_the_bins():
             curved = in_range & (cls == "cylinder")
             assert np.isfinite(d["h1_20"][curved]).mean() > 0.9
     assert filled_all >= 0.95 * surface_all, filled_all / surface_all
+
+
+def test_surface_rule_measures_walls_without_the_nearest_points_short_bias():
+    """Signed KOS − truth on the walls in range, relative to the range, pooled over four views and two seeds: the
+    nearest point of a bin's ~20–70 noisy wall points lies 2–3 σ short (the Kinect v2's σ grows with range, so the
+    scans shrink: −0.3 % and worse, measured −0.5 % on the office); the mean of the nearest surface's points is
+    within 0.05 % of the truth, at every range band."""
+    rel = {"surface": [], "point": []}
+    far = {"surface": [], "point": []}
+    for pose in POSES:
+        for seed in (0, 1):
+            truth = None
+            for nearest in rel:
+                scans, a = kos_at(pose, [0.75, 1.5], seed=seed, nearest=nearest)
+                for name, h in (("h0_75", 0.75), ("h1_50", 1.5)):
+                    if truth is None or truth[0] != h:
+                        truth = (h, *truth_at(pose, h, a))
+                    t, cls = truth[1], truth[2]
+                    r = scans[name]
+                    ok = (np.isfinite(r) & (t >= 0.6) & (t <= 4.4) & (cls == "wall") & visible(t, a, camera_mount())
+                          & (np.abs(r - t) < 0.1))
+                    rel[nearest].append((r[ok] - t[ok]) / t[ok])
+                    far[nearest].append((r[ok & (t > 3.0)] - t[ok & (t > 3.0)]) / t[ok & (t > 3.0)])
+    med = {k: float(np.median(np.concatenate(v))) for k, v in rel.items()}
+    med_far = {k: float(np.median(np.concatenate(v))) for k, v in far.items()}
+    assert sum(len(v) for v in rel["surface"]) > 2000
+    assert med["point"] < -0.003, med
+    assert abs(med["surface"]) <= 0.0005, med
+    assert abs(med_far["surface"]) <= 0.0005, med_far
 
 
 def test_obstacle_scan_agrees_with_the_hokuyo_at_its_height():
