@@ -69,24 +69,106 @@ def floor_height(normals: np.ndarray, offsets: np.ndarray, counts: np.ndarray, u
     return float(np.max(np.asarray(offsets)[level])) if level.any() else float("nan")
 
 
+def depth_sigma(z: np.ndarray) -> np.ndarray:
+    """Axial depth noise σ (m) of a Kinect at depth z (m): 1.2 mm + 1.9 mm·(z − 0.4 m)² per m² (Nguyen, Izadi and
+    Lovell, "Modeling Kinect sensor noise for improved 3D reconstruction and tracking", 3DIMPVT 2012)."""
+    return 0.0012 + 0.0019 * (np.asarray(z, float) - 0.4) ** 2
+
+
+HAND_SPEED = 1.0  # m/s: the fastest a hand moves a camera up or down (the motion model's bound between frames)
+FRAME_PERIOD = 1.0 / 30.0  # s between frames when they carry no time stamps (a depth camera's 30 Hz)
+
+
+@dataclass
+class FloorTracker:
+    """The camera's height above the floor over a handheld sequence, through the frames that do not see the floor.
+
+    Each frame's level, up-facing planes are explained by one camera height c above the floor: plane j then lies
+    c − d_j above it, on the floor (0) or on a level surface seen before (a desk, a shelf: `levels`, each measured
+    in a frame that saw the floor, against it, so no error accumulates). The candidates are the farthest plane on
+    the floor, or any plane on any known level; each costs its planes' truncated squares (a plane's points ×
+    (its height's distance to the nearest level / its gate)², at most its points; the gate k_sigma·√2·σ of both
+    planes' depth noise, σ(z) at their points' mean depth), and within the hand's reach of the last height
+    (HAND_SPEED × the time since, the motion model) the cheapest wins, then the nearest. The farthest plane is the
+    floor when the winner puts it there (within its gate): the other planes then measure or refine the levels. So a
+    frame that sees only the desk still puts the floor a desk's height further down (docs/planes.md)."""
+
+    height: float = float("nan")  # the camera's height above the floor
+    levels: np.ndarray = field(default_factory=lambda: np.zeros(0))  # known level surfaces' heights above the floor
+    weights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # points that measured each
+    step: float = 0.15  # a level surface lower than this is the floor ([fspf] ground_max_height)
+    k_sigma: float = 3.0
+    stamp: float = float("nan")  # s, the last frame with a height
+
+    def update(self, offsets: np.ndarray, depths: np.ndarray, counts: np.ndarray, stamp: float) -> float:
+        """The camera's height above the floor after a frame's level, up-facing planes (distance below the camera,
+        mean depth, points); the last one when the frame has none, NaN before any."""
+        d, w = np.asarray(offsets, float), np.asarray(counts, float)
+        if not len(d):
+            return self.height
+        far = int(np.argmax(d))
+        sigma = depth_sigma(depths)
+        gates = self.k_sigma * np.sqrt(2.0) * np.hypot(sigma, sigma[far])
+        ok = np.isfinite(stamp) and np.isfinite(self.stamp) and stamp > self.stamp
+        reach = HAND_SPEED * ((stamp - self.stamp) if ok else FRAME_PERIOD) + gates[far]
+        self.stamp = stamp
+        if np.isfinite(self.height) and d[far] < self.height - reach and len(self.levels):
+            # the farthest plane lies higher than the hand could have lifted the floor: a raised surface; the height
+            # that puts the frame's planes best on the floor and the known levels, nearest the last one
+            cand = (d[:, None] + self.levels[None, :]).ravel()
+            cand = cand[np.abs(cand - self.height) <= reach]
+            if len(cand):
+                known = np.concatenate([[0.0], self.levels])
+                res = np.abs((cand[:, None] - d[None, :])[:, :, None] - known[None, None, :]).min(axis=2)
+                cost = np.minimum((res / gates[None, :]) ** 2, 1.0) @ w
+                best = np.flatnonzero(cost <= cost.min() + 1e-9 * w.sum())
+                self.height = float(cand[best[np.argmin(np.abs(cand[best] - self.height))]])
+                return self.height
+        self.height = float(d[far])  # the floor in view: it sets the height and measures the levels
+        self.learn(self.height - d, w, gates)
+        return self.height
+
+    def learn(self, heights: np.ndarray, counts: np.ndarray, gates: np.ndarray) -> None:
+        """Measure the level surfaces from one frame's planes' heights above the floor (a floor frame)."""
+        for h, n, g in zip(heights, counts, gates):
+            if h < self.step:
+                continue
+            k = int(np.argmin(np.abs(self.levels - h))) if len(self.levels) else -1
+            if k >= 0 and abs(self.levels[k] - h) < g:
+                self.levels[k] = (self.weights[k] * self.levels[k] + n * h) / (self.weights[k] + n)
+                self.weights[k] += n
+            else:
+                self.levels = np.append(self.levels, h)
+                self.weights = np.append(self.weights, n)
+
+
 @dataclass
 class GravityTracker:
-    """Up (and the camera height) over a sequence, each frame's estimate the next one's prior."""
+    """Up and the camera's height above the floor over a sequence: up from the dominant level family, each frame's
+    estimate the next one's prior; the height from the floor, tracked (FloorTracker)."""
 
     up: np.ndarray = field(default_factory=lambda: LEVEL_UP.copy())
     height: float = float("nan")
     max_tilt_deg: float = 50.0
     frames: int = 0  # frames whose planes gave an estimate
+    floor: FloorTracker = field(default_factory=FloorTracker)
 
-    def update(self, planes: Planes) -> np.ndarray:
+    def update(self, planes: Planes, stamp: float = float("nan")) -> np.ndarray:
         up, _ = dominant_up(planes.normals, planes.counts, self.up, self.max_tilt_deg)
         if up is not None:
             self.up = up
             self.frames += 1
-            h = floor_height(planes.normals, planes.offsets, planes.counts, up)
-            if np.isfinite(h):
-                self.height = h
+            self.height = self.floor.update(*level_planes(planes, up), stamp)
         return self.up
+
+
+def level_planes(planes: Planes, up: np.ndarray, family_deg: float = 5.0,
+                 min_points: int = 500) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The up-facing level planes (within family_deg of up, min_points or more): their distances below the camera,
+    their points' mean depths and their points."""
+    level = (planes.normals @ up > np.cos(np.radians(family_deg))) & (planes.counts >= min_points)
+    depth = np.bincount(planes.plane, planes.points[:, 2], len(planes)) / np.maximum(planes.counts, 1)
+    return planes.offsets[level], depth[level], planes.counts[level]
 
 
 def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from kosmap.frontend.camera import OPTICAL_ROTATION, gravity_up
 from kosmap.frontend.fspf import filter_planes, frame_seed
-from kosmap.frontend.gravity import GravityTracker, drop_classes, floor_height, reclassify
+from kosmap.frontend.gravity import GravityTracker, drop_classes, level_planes, reclassify
 from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.planes import Planes
 from kosmap.frontend.records import Transform
@@ -37,12 +37,12 @@ class Classes:
             self.first_mount = (item.mount, item.gravity)
         self.used[item.gravity] = self.used.get(item.gravity, 0) + 1
         fspf = self.cfg.fspf
+        self.tracker.floor.step = fspf.ground_max_height
         if item.gravity == "frames":
-            up = self.tracker.update(planes)
+            up = self.tracker.update(planes, item.stamp_ns * 1e-9)
             return reclassify(planes, up, self.tracker.height, fspf)
         if item.gravity in ("file", "imu"):
-            h = floor_height(planes.normals, planes.offsets, planes.counts, item.up)
-            self.tracker.height = h if np.isfinite(h) else self.tracker.height
+            self.tracker.height = self.tracker.floor.update(*level_planes(planes, item.up), item.stamp_ns * 1e-9)
             return reclassify(planes, item.up, self.tracker.height, fspf)
         self.calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
         return drop_classes(planes, fspf)

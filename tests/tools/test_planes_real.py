@@ -97,13 +97,16 @@ def test_gravity_from_the_frames_agrees_with_the_kinects_accelerometer(data_dir)
 
 
 @pytest.mark.slow
-def test_tum_floor_is_ground_with_gravity_from_the_frames(data_dir):
-    """TUM fr1_xyz, a handheld camera tilted over a desk, no mount, no IMU used: gravity from the frames. The label:
-    up is the Kinect's accelerometer turned into the mocap frame by the ground-truth poses and averaged over the
-    sequence (the hand's accelerations cancel), then turned back into each frame; a floor plane is level (within
-    10° of that up: the label's own spread per sample is ~3.5°) and 1.3 m or more below the camera (the desk lies
-    0.5–1.2 m below it). Of the floor planes ≥ 2000 px ~90 % come out ground; every ground plane is level, but
-    when no floor is in view the desk is taken for the floor (ground): half the ground planes are desk."""
+@pytest.mark.parametrize("seed", [0, 1])
+def test_tum_floor_is_ground_with_gravity_from_the_frames(data_dir, seed):
+    """TUM fr1_xyz, a handheld camera tilted over a desk, no mount, no IMU used: gravity from the frames, the floor's
+    height tracked through the frames that see only the desk (frontend/gravity.FloorTracker). The label: up is the
+    Kinect's accelerometer turned into the mocap frame by the ground-truth poses and averaged over the sequence
+    (the hand's accelerations cancel), then turned back into each frame; a floor plane is level (within 10° of that
+    up: the label's own spread per sample is ~3.5°) and 1.3 m or more below the camera (the desk lies 0.5–1.2 m
+    below it). Of the floor planes ≥ 2000 px ~90 % come out ground (the rest: fits tilted 3–8° off the floor's
+    normal, beyond the 3° of [fspf] slanted_min_deg); ≥ 98 % of the ground planes are level within 5°, and only
+    the frames before the floor is first seen take the desk for it (the ground planes off the floor)."""
     from scipy.spatial.transform import Rotation
 
     from kosmap.frontend.gravity import GravityTracker, reclassify
@@ -118,16 +121,18 @@ def test_tum_floor_is_ground_with_gravity_from_the_frames(data_dir):
     world_up = np.mean([rot(a[0]) @ (a[1:] * np.array([-1.0, -1.0, 1.0])) for a in acc[::5]], axis=0)
     world_up /= np.linalg.norm(world_up)
     cfg, tracker = FspfConfig(drop_classes=[]), GravityTracker()
-    floor = floor_ground = ground = ground_level = 0
+    floor = floor_ground = ground = ground_level = ground_floor = 0
     for s in iter_dataset(folder, 200, 2):
         up_true = rot(s.stamp).T @ world_up
-        p = fspf_plus(s.depth, s.camera, cfg, seed=0)
-        p = reclassify(p, tracker.update(p), tracker.height, cfg)
+        p = fspf_plus(s.depth, s.camera, cfg, seed=seed)
+        p = reclassify(p, tracker.update(p, s.stamp), tracker.height, cfg)
         c = p.normals @ up_true
         tilt = np.degrees(np.arccos(np.minimum(1.0, np.abs(c))))
         big, gr = p.counts >= 2000, p.classes == PLANE_CLASSES.index("ground")
         fl = big & (tilt < 10.0) & (c > 0) & (p.offsets * np.sign(c) > 1.3)
         floor, floor_ground = floor + fl.sum(), floor_ground + (fl & gr).sum()
         ground, ground_level = ground + (big & gr).sum(), ground_level + (big & gr & (tilt < 5.0)).sum()
+        ground_floor += (big & gr & fl).sum()
     assert floor >= 100 and floor_ground / floor >= 0.85, (floor_ground, floor)
-    assert ground_level / ground >= 0.95, (ground_level, ground)
+    assert ground_level / ground >= 0.98, (ground_level, ground)
+    assert ground_floor / ground >= 0.9, (ground_floor, ground)
