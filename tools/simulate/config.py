@@ -98,6 +98,10 @@ class SimConfig(StageConfig):
     imu_rate: float = param(200.0, **_POS, doc="IMU sample rate", unit="Hz")
     imu_topic: str = param("/imu", doc="IMU topic")
     imu_frame: str = param("imu_link", doc="IMU frame id (identity mount on base_link in /tf_static)")
+    imu_on_camera: bool = param(False, doc="the IMU sits on the front depth camera (a camera's built-in IMU): its "
+                                "samples in the camera's optical frame, its frame id the camera's (imu_frame unused)")
+    tf_static: bool = param(True, doc="write the mounts to /tf_static (false: a log without them, e.g. a handheld "
+                            "camera's)")
     gyro_noise_density: float = param(0.005, lo=0.0, doc="gyro white noise density (angle random walk); σ per "
                                       "sample = density·√imu_rate", unit="deg/s/√Hz")
     gyro_bias_sigma: float = param(0.02, lo=0.0, doc="σ of the gyro's turn-on bias per axis (what a start-up "
