@@ -44,6 +44,7 @@ class GraphConfig(StageConfig):
     odom_sigma_xy_per_m: float = param(0.1, lo=0.0, doc="… this much per metre travelled", unit="m/m")
     odom_sigma_yaw_deg: float = param(2.0, lo=0.0, lo_open=True, doc="wheel-odometry factor yaw σ, plus …", unit="deg")
     odom_sigma_yaw_per_rad: float = param(0.1, lo=0.0, doc="… this fraction of the rotation", unit="rad/rad")
+    odom_noise: str = param("measured", choices=("measured", "fixed"), doc="wheel-odometry factor σ, the front end's search window and the loop window's drift from the odometry's noise measured while running against the scan matcher (backend/odomnoise.py; the odom_sigma_* above are its prior), or the odom_sigma_* as given")
     loop_closure: bool = param(True, doc="search for and add loop closures")
     submap_nodes: int = param(40, lo=2, doc="nodes per loop-closure submap")
     loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps whose centre is within this distance", unit="m")
@@ -278,13 +279,19 @@ class PoseGraph:
         """The front end's relative pose a → b (consecutive nodes): fixed σ, or a full covariance `cov`."""
         self._add("match", a, b, rel, self.match_sigmas(rel) if sigmas is None else sigmas, robust=False, cov=cov)
 
-    def add_odometry(self, a: int, b: int, rel: np.ndarray) -> None:
-        """The wheel-odometry increment a → b, with σ growing with distance and rotation."""
+    def odometry_sigmas(self, rel: np.ndarray) -> np.ndarray:
+        """The configured wheel-odometry factor σ (x, y, yaw) for an increment: growing with distance and rotation."""
         c = self.cfg
         d = math.hypot(rel[0], rel[1])
         sxy = c.odom_sigma_xy + c.odom_sigma_xy_per_m * d
         syaw = math.radians(c.odom_sigma_yaw_deg) + c.odom_sigma_yaw_per_rad * abs(rel[2])
-        self._add("odom", a, b, rel, np.array([sxy, sxy, syaw]), robust=False, online=self._calibrated("odom", rel))
+        return np.array([sxy, sxy, syaw])
+
+    def add_odometry(self, a: int, b: int, rel: np.ndarray, sigmas: np.ndarray | None = None) -> None:
+        """The wheel-odometry increment a → b: σ as configured (odometry_sigmas), or `sigmas` (the odometry's noise
+        measured while running, backend/odomnoise.py)."""
+        sig = self.odometry_sigmas(rel) if sigmas is None else np.asarray(sigmas, dtype=float)
+        self._add("odom", a, b, rel, sig, robust=False, online=self._calibrated("odom", rel))
 
     def gyro_sigma(self, dt: float, bias_estimated: bool) -> float:
         """σ of a gyro yaw increment over dt: N²·Δt + (σ_b·Δt)² (when the bias is not a variable) + floor²."""

@@ -134,7 +134,9 @@ class DriftModel:
     Between loops nothing but the front end (and the wheels) places the robot, and its error grows with the
     travel: σ = rate · travel. `rate` starts at `loop_drift_per_m` and follows what accepted loops measure (the
     distance from the estimate to where the match put the node, over the travel since the previous loop:
-    Olson 2009's "how far could we be" argument for the loop search's window). The search's half window is 3σ,
+    Olson 2009's "how far could we be" argument for the loop search's window), and is never below the drift the
+    wheel odometry puts in where the front end leans on it (`odometry_rate`: the share of matches held to the
+    odometry × its measured scale error, backend/odomnoise.py). The search's half window is 3σ,
     never below `loop_linear_window` nor above `loop_max_linear_window`; the candidates' radius grows with it."""
 
     def __init__(self, cfg: GraphConfig) -> None:
@@ -143,6 +145,7 @@ class DriftModel:
         self.travel = 0.0  # metres of front-end travel since the last accepted loop
         self._last: np.ndarray | None = None
         self._worst = 0.0  # largest correction among this search's accepted loops
+        self.odometry_rate = 0.0  # drift per metre the odometry puts in where the front end leans on it (set by Slam)
 
     def travel_to(self, pose: np.ndarray) -> None:
         if self._last is not None:
@@ -151,7 +154,8 @@ class DriftModel:
 
     def window(self) -> float:
         c = self.cfg
-        return float(min(max(c.loop_linear_window, 3.0 * self.rate * self.travel), max(c.loop_max_linear_window,
+        rate = max(self.rate, self.odometry_rate)
+        return float(min(max(c.loop_linear_window, 3.0 * rate * self.travel), max(c.loop_max_linear_window,
                                                                                            c.loop_linear_window)))
 
     def corrected(self, pose: np.ndarray, guess: np.ndarray) -> None:

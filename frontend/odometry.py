@@ -325,6 +325,10 @@ class SubmapOdometry:
         self.recoveries = 0
         self.matches = 0  # scans matched
         self.degenerate = 0  # … of which degenerate (the odometry held one direction)
+        # the odometry's measured noise (backend/odomnoise.py OdomNoise, set by the SLAM core once measured): any
+        # object with translation_sigma(d) and yaw_sigma_of(d, dyaw); the search window then covers 3σ of the
+        # prediction's error over the scan step when that exceeds search_linear / search_angular_deg
+        self.odom_noise = None
 
     def _predict(self, odom_pose: np.ndarray | None) -> tuple[np.ndarray, bool]:
         if odom_pose is not None and self.prev_odom is not None:
@@ -361,6 +365,8 @@ class SubmapOdometry:
         pts64 = np.ascontiguousarray(pts, dtype=np.float64)
         lin = cfg.search_linear if has_odom else cfg.search_no_odom_linear
         ang = math.radians(cfg.search_angular_deg if has_odom else cfg.search_no_odom_angular_deg)
+        if has_odom and self.odom_noise is not None and (lin > 0 or ang > 0):
+            lin, ang = self._noise_window(pred, lin, ang)
         start = pred
         if lin > 0 or ang > 0:
             start, _ = correlative_search(c.values, c.origin[0], c.origin[1], c.resolution, pts64, pred, lin,
@@ -394,6 +400,16 @@ class SubmapOdometry:
                 info = info.copy()
                 info[:2, :2] -= (1.0 - keep) * float(v @ info[:2, :2] @ v) * np.outer(v, v)
         return np.asarray(pose, dtype=float), float(score), info
+
+    def _noise_window(self, pred: np.ndarray, lin: float, ang: float) -> tuple[float, float]:
+        """The search half windows widened to 3σ of the odometry's measured error over this scan step (the
+        prediction's increment), up to the windows used without odometry; never narrower than configured."""
+        step = se2.between(self.pose, pred)
+        d = math.hypot(step[0], step[1])
+        n = self.odom_noise
+        cap_lin, cap_ang = self.cfg.search_no_odom_linear, math.radians(self.cfg.search_no_odom_angular_deg)
+        return (max(lin, min(3.0 * n.translation_sigma(d), cap_lin)) if lin > 0 else 0.0,
+                max(ang, min(3.0 * n.yaw_sigma_of(d, float(step[2])), cap_ang)) if ang > 0 else 0.0)
 
     def _recover(self, pts: np.ndarray, pred: np.ndarray) -> tuple[np.ndarray, float, np.ndarray]:
         """Branch-and-bound search over ±recovery_linear, ±recovery_angular_deg, then Gauss–Newton."""
