@@ -76,6 +76,8 @@ class WindowSearch:
         self.last = self.window.total_m
         self.last_odom = self.window.odom[-1].copy()
         v, self.sure = self._search(z_max, *self.window.submap(), self.sure)
+        if v.claim and self.window.span_m > self.cfg.check_m:
+            v = self._rigid(z_max, v)
         if v.claim:  # a later claim (after the pose is lost) needs two sure searches of its own
             self.sure = None
             # the place's pose from the last metre of scans alone: over the whole window the wheels' scale error
@@ -83,6 +85,25 @@ class WindowSearch:
             recent, _ = self.window.submap(self.cfg.search_min_m)
             v.poses[0] = _polish(self.f, recent[gs.thin(recent, self.cfg.search_fine)], v.poses[0])
         return v
+
+    def _rigid(self, z_max: float, v: Verdict) -> Verdict:
+        """The whole window's claim, held against its own last check_m: a rigid submap's recent part fits where the
+        whole does, so when that part alone is sure of another place, the window spans a jump the wheels did not see
+        (a robot carried, the odometry continuous): its older scans, stitched across the jump, fit a look-alike
+        (in a room symmetric under a quarter turn, the place the robot was carried by that turn) better than the
+        truth. Then nothing is claimed, the window is cut to the recent part, and that part's place, when its readings
+        also keep clear of its walls (the recent part may still hold scans from before the jump), is the sure one the
+        next search must confirm."""
+        c = self.cfg
+        recent, sure = self._search(z_max, *self.window.submap(c.check_m), None, v.poses[0])
+        if recent.prob[0] < c.claim_p:  # the recent part alone may be unsure: that refutes nothing
+            return v
+        d = recent.poses[0] - v.poses[0]
+        if math.hypot(d[0], d[1]) < c.search_apart and abs(se2.wrap(d[2])) < math.radians(c.search_apart_deg):
+            return v
+        self.window.keep_recent(c.check_m)
+        self.sure = sure
+        return Verdict(recent.poses, recent.prob, recent.through, False)
 
     def check_due(self) -> bool:
         w, c = self.window, self.cfg

@@ -43,7 +43,7 @@ class Scored:
     """A log localized: its metrics, the per-pose status, log seconds and position error against the log's own truth
     (not aligned)."""
 
-    def __init__(self, log, out, m: dict) -> None:
+    def __init__(self, log, out, m: dict, truth=None) -> None:
         from kosmap.frontend.logs import open_log
         from kosmap.frontend.records import Odometry
 
@@ -51,9 +51,12 @@ class Scored:
         self.status = np.genfromtxt(out / "confidence.csv", delimiter=",", names=True, dtype=None,
                                     encoding=None)["status"]
         tum = np.loadtxt(out / "trajectory.tum")
-        with open_log(log) as lg:
-            gt = np.array([(r.stamp_ns * 1e-9, r.x, r.y) for r in lg.read(["/ground_truth/odom"])
-                           if isinstance(r, Odometry)])
+        if truth is not None:  # a TUM file of the truth (x, y in columns 1, 2)
+            gt = np.loadtxt(truth)[:, :3]
+        else:
+            with open_log(log) as lg:
+                gt = np.array([(r.stamp_ns * 1e-9, r.x, r.y) for r in lg.read(["/ground_truth/odom"])
+                               if isinstance(r, Odometry)])
         self.err = np.hypot(tum[:, 1] - np.interp(tum[:, 0], gt[:, 0], gt[:, 1]),
                             tum[:, 2] - np.interp(tum[:, 0], gt[:, 0], gt[:, 2]))
         self.t = tum[:, 0] - tum[0, 0]
@@ -63,10 +66,12 @@ class Scored:
 def localized(tmp_path, capsys):
     """localized(make, *extra): the log `make(path)` writes, localized in its plan, scored (a Scored)."""
 
-    def run(make, plan, *extra) -> Scored:
+    def run(make, plan, *extra, truth=None) -> Scored:
         log = make(tmp_path / "derived.mcap")
         out = tmp_path / "out"
-        return Scored(log, out, _localize(log, plan, out, capsys, *extra))
+        if truth is not None:
+            extra = (*extra, "--ground-truth", str(truth))
+        return Scored(log, out, _localize(log, plan, out, capsys, *extra), truth)
 
     return run
 
@@ -144,9 +149,12 @@ def test_sensor_gap_while_driving_is_detected_and_the_pose_found_again(room, loc
 def _splice(src, dst, cut_s: float, resume_s: float):
     """The log up to `cut_s`, then from `resume_s` on, shifted back to follow without a pause: the robot is carried
     from where it was at cut_s to where it was at resume_s (kidnapped). The wheel odometry continues from its last
-    pose by the second part's own motion, as the robot's wheels would report it; the truth jumps."""
+    pose by the second part's own motion, as the robot's wheels would report it; the truth jumps. The truth is also
+    written to `dst`.tum, read from the records before they are written: a reader bridges a pose jump faster than
+    any robot drives (frontend/logs/validate.py) on every odometry topic, and a carry over 2 m is one."""
     import dataclasses
 
+    from kosmap.backend.trajio import write_tum
     from kosmap.frontend import se2
     from kosmap.frontend.logs import open_log
     from kosmap.frontend.logs.writer import McapWriter
@@ -160,6 +168,7 @@ def _splice(src, dst, cut_s: float, resume_s: float):
     last = next(r for r in reversed(odom) if r.stamp_ns <= cut)
     first = next(r for r in odom if r.stamp_ns >= resume)
     base, ref = np.array([last.x, last.y, last.yaw]), np.array([first.x, first.y, first.yaw])
+    truth = []
     with McapWriter(dst) as w:
         for r in recs:
             t = getattr(r, "stamp_ns", 0)
@@ -170,31 +179,50 @@ def _splice(src, dst, cut_s: float, resume_s: float):
                 if isinstance(r, Odometry) and r.topic == "/odom":
                     x, y, yaw = se2.compose(base, se2.between(ref, np.array([r.x, r.y, r.yaw])))
                     r = dataclasses.replace(r, x=float(x), y=float(y), yaw=float(yaw))
+            if isinstance(r, Odometry) and r.topic == "/ground_truth/odom":
+                truth.append((r.stamp_ns * 1e-9, r.x, r.y, r.yaw))
             w.write(r, r.topic)
+    tr = np.array(truth)
+    write_tum(dst.with_suffix(".tum"), tr[:, 0], tr[:, 1:])
     return dst
 
 
 @pytest.mark.slow
-def test_kidnapped_robot_is_detected_and_found_again(room, localized):
+@pytest.mark.parametrize("cut, resume, detect_s, recover_s", [
+    # carried 1.8 m and turned a quarter, onto the room's own quarter-turn symmetry: the bare 5 x 5 m plan fits the
+    # held pose as well as the truth until the door to the side room is in view. Measured: the wrong pose abandoned
+    # (lost) 19.0 s after the carry, the right one claimed 24.4 s after it, then 0.023 m RMSE
+    (12.0, 20.0, 25.0, 30.0),
+    # carried 2.1 m and turned a quarter off the symmetry: the held pose's readings soon pass through its walls.
+    # Measured: the right pose held again 2.8 s after the carry (the filter's random particles find it before the
+    # pose is called lost; with other KOS scans: lost after 0.9 s and claimed again after 7.1 s), then 0.12 m RMSE
+    # (0.16 m off across the east side's path for 16 s: 0.15 m is the plan's wall thickness, whose far face
+    # fits the matcher as well as the near one)
+    (30.0, 40.0, 5.0, 15.0),
+])
+def test_kidnapped_robot_is_detected_found_again_and_held(room, localized, tmp_path, cut, resume, detect_s,
+                                                          recover_s):
+    """A robot carried while its sensors run on (two stretches of the room log spliced; the wheel odometry continuous):
+    the pose it held is abandoned (lost, or replaced by the filter's own recovery) within `detect_s`, and the right
+    pose is tracked again within `recover_s` and held to the end of the log."""
     log, plan = room
-    cut, resume = 12.0, 20.0  # carried 1.8 m and turned 90° while its sensors run on
-    r = localized(lambda p: _splice(log, p, cut, resume), plan)
+    r = localized(lambda p: _splice(log, p, cut, resume), plan, truth=tmp_path / "derived.tum")
     loc = r.loc
     assert loc["converged_s"] is not None and loc["converged_s"] < cut, loc
-    lost = [s for s in loc["lost"] if s["start_s"] >= cut]
-    # detected and found again only when the view tells the room's sides apart: carried to the table's far side,
-    # the robot drives along walls a 4.5 m, 70° camera sees alike from either side of the bare plan (the door's
-    # opening gives no return at that range) until it faces the door again. Measured: lost from 31.0 s, found
-    # again at 35.2 s, 23.2 s after it was carried
-    assert lost and lost[0]["start_s"] <= cut + 25.0, loc
-    assert lost[0]["recovered_s"] is not None and lost[0]["recovered_s"] <= cut + 35.0, loc
-    after = r.t >= lost[0]["recovered_s"]
-    if np.mean(r.status[after] == "tracking") < 0.9:  # a known shortfall, docs/localize.md: the claim is not held
-        pytest.xfail(f"found again at {lost[0]['recovered_s']:.1f} s but not held: tracking "
-                     f"{np.mean(r.status[after] == 'tracking'):.0%} of the scans after (docs/localize.md)")
-    end = r.t >= r.t[-1] - 5.0
-    assert np.all(r.status[end] == "tracking"), r.status[end]
-    assert np.sqrt(np.mean(r.err[end] ** 2)) <= 0.1, r.err[end]
+    tracked = r.status == "tracking"
+    before = (r.t >= loc["converged_s"]) & (r.t < cut)
+    assert np.all(r.err[before] <= 0.3), r.err[before]
+    # no pose more than 0.5 m off is still claimed detect_s after the carry
+    wrong = tracked & (r.err > 0.5) & (r.t > cut)
+    assert not np.any(wrong & (r.t > cut + detect_s)), (r.t[wrong], loc)
+    # from recover_s on, every scan is tracked within 0.3 m of the truth, and the stretch it is held from is accurate
+    ok = tracked & (r.err <= 0.3)
+    miss = np.flatnonzero(~ok & (r.t > cut))
+    back = r.t[miss[-1] + 1] if len(miss) else cut
+    assert len(miss) == 0 or miss[-1] + 1 < len(r.t), loc
+    assert back <= cut + recover_s, (back, loc)
+    held = r.t >= back
+    assert np.sqrt(np.mean(r.err[held] ** 2)) <= 0.15, r.err[held]
 
 
 def _bad(capsys, *args) -> str:
