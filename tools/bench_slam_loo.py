@@ -31,14 +31,15 @@ from kosmap.tools.bench_slam import LOGS, PUBLISHED
 from kosmap.tools import peer_yag
 from kosmap.tools.data import REPO, data_dir
 
-# The candidates: the default, and each of the rules added for buildings the tuning logs did not show turned off
-# (the scan-geometry degeneracy prior, the drift-grown loop window), and the loop acceptance score a step either side.
+# The candidates: the default, and each of the rules added for buildings the tuning logs did not show turned off or
+# back to the constant it replaced (the scan-geometry degeneracy prior, the drift-grown loop window, the loop
+# acceptance score from the scan's noise, the odometry noise measured while running).
 CANDIDATES: dict[str, dict] = {
     "default": {},
     "no-degeneracy": {"odometry.degenerate_ratio": 0.0},
     "fixed-loop-window": {"graph.loop_max_linear_window": 1.0},
-    "loop-score-0.5": {"graph.loop_min_score": 0.5},
-    "loop-score-0.7": {"graph.loop_min_score": 0.7},
+    "fixed-loop-score": {"graph.loop_score": "fixed"},
+    "fixed-odometry-noise": {"graph.odom_noise": "fixed"},
 }
 
 # The unscored logs: (folder/file, importer format or None when kosmap reads the file itself, what it is)
