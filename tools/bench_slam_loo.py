@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -116,7 +117,8 @@ def map_unscored(tmp: Path) -> list[dict]:
         mj = out / "metrics.json"
         if p.returncode == 0 and mj.exists():
             run = json.loads(mj.read_text())["run"]
-            row.update({k: run.get(k) for k in ("scans", "keyframes", "loops", "duration_s", "realtime_factor", "consistency")})
+            row.update({k: run.get(k) for k in ("scans", "keyframes", "loops", "duration_s", "realtime_factor", "consistency",
+                                                "loop_search", "odometry_noise")})
         row["yag_slam"] = peer_unscored(log)
         rows.append(row)
         print(f"{rel}: exit {p.returncode}, {row.get('loops')} loops, consistency {row.get('consistency')}", flush=True)
@@ -148,16 +150,34 @@ def markdown(loo: dict, res: dict, unscored: list[dict], meta: dict) -> str:
               "Beside it, yag-slam (OpenKarto, `tools/peer_yag.py`) on the same log with the same odometry: its loops, the "
               "same figure over its keyframes (0.2 m apart, ours 0.15 m; how many of them revisit) and its real-time "
               "factor.", "",
-              "| log | sensor, format | exit | scans | loops | revisits off, median / 90 % (m) | likely bent | real-time "
-              "| yag-slam loops | yag-slam revisits off (m) | yag-slam real-time |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "Loop score asked: the score a loop had to reach (`[graph] loop_score = \"derived\"`: 0.6 × the score expected "
+              "of a true match given the scan's own scatter), lowest–highest over the run's searches. Odometry measured: "
+              "the wheels' scale error and heading drift per metre measured while running against the scan matcher "
+              "(backend/odomnoise.py; – where the log has no odometry or too few matched intervals).", "",
+              "| log | sensor, format | exit | scans | loops | loop score asked | odometry measured | revisits off, median / "
+              "90 % (m) | likely bent | real-time | yag-slam loops | yag-slam revisits off (m) | yag-slam real-time |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for r in unscored:
             c = r.get("consistency") or {}
             off = _revisits(c)
             rt = r.get("realtime_factor")
-            L.append(f"| {r['log']} | {r['what']} | {r['exit']} | {r.get('scans', '–')} | {r.get('loops', '–')} | {off} | "
+            L.append(f"| {r['log']} | {r['what']} | {r['exit']} | {r.get('scans', '–')} | {r.get('loops', '–')} | "
+                     f"{_asked(r.get('loop_search'))} | {_odometry(r.get('odometry_noise'))} | {off} | "
                      f"{'yes' if c.get('bent') else 'no'} | {f'{rt:.0f}×' if rt else '–'} | {_peer_cells(r.get('yag_slam'))} |")
     return "\n".join(L) + "\n"
+
+
+def _asked(ls: dict | None) -> str:
+    lo, hi = (ls or {}).get("min_score_lo"), (ls or {}).get("min_score_hi")
+    if lo is None or lo != lo:
+        return "– (no search)"
+    return f"{lo:.3f}" if abs(hi - lo) < 5e-4 else f"{lo:.3f}–{hi:.3f}"
+
+
+def _odometry(n: dict | None) -> str:
+    if not n or not n.get("measured"):
+        return "–"
+    return f"{100 * n['scale_error']:+.1f} %, {math.degrees(n['heading_drift']):+.2f}°/m"
 
 
 def _revisits(c: dict) -> str:
