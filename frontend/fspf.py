@@ -99,8 +99,8 @@ class FspfConfig(StageConfig):
                                      "mount) is 'raised' (a table top), not ground", unit="m")
     merge: bool = param(True, doc="merge coplanar patches into one refitted plane")
     merge_angle_deg: float = param(5.0, lo=0.0, hi=90.0, doc="merge: normals agree within this angle", unit="deg")
-    merge_offset_m: float = param(0.05, lo=0.0, doc="merge: the patch's centroid within this distance of the merged plane "
-                                    "(which must also stay one surface: its residual RMS grows by ε/20 at most)", unit="m")
+    merge_offset_m: float = param(0.05, lo=0.0, doc="merge: the patch's centroid within this distance of the merged plane, "
+                                    "and within ε (which must also stay one surface: its residual RMS grows by ε/20 at most)", unit="m")
     drop_classes: list = param(["ground", "ceiling"], choices=PLANE_CLASSES, doc="plane classes filtered out")
     seed: int = param(0, lo=0, doc="random seed (per frame, the frame index is added)")
 
@@ -189,9 +189,11 @@ def _workspace(npx: int, p_cap: int) -> dict:
 def _finish(planes: Planes, cfg: FspfConfig, classes_of: _Classes, t0: float, moments=None) -> Planes:
     if cfg.merge and len(planes) > 1:
         drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
-        # merged planes stay one surface: their residual RMS may grow by ε/20 at most (planes.merge_planes)
+        # merged planes stay one surface: their residual RMS may grow by ε/20 at most, and a patch's centroid lies
+        # within ε of the merged plane (farther, its points would leave the plane's inlier band: another surface,
+        # a box top on a table, which the RMS bound misses when the patch is small beside the table)
         eps = cfg.fspf_error_m if planes.method == "fspf" else cfg.epsilon_m
-        planes = merge_planes(planes, cfg.merge_angle_deg, cfg.merge_offset_m, classes_of, drop, moments,
+        planes = merge_planes(planes, cfg.merge_angle_deg, min(cfg.merge_offset_m, eps), classes_of, drop, moments,
                               inplace=True, rms_step=eps / 20.0)
     planes.stats.planes = len(planes)
     planes.stats.elapsed_ms = (time.thread_time() - t0) * 1e3  # this thread's CPU time: the algorithm's own

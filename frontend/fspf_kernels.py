@@ -340,59 +340,185 @@ def _inv_d2(flat, j, step):
 
 
 @njit(cache=True, error_model="numpy")
-def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, nx, ny, nz, d, eps, beta, max_iter, state,
-                     tx, ty, tz, ux, uy, uz, uidx, noise, cos_split):
+def _select_nb(a, n, k):
+    """The k-th smallest of a[:n] (a reordered in place): Hoare's quickselect. Hand-written because np.sort and
+    np.percentile order the whole array, and this runs for every plane the coherence test samples."""
+    lo, hi = 0, n - 1
+    while lo < hi:
+        p = a[(lo + hi) // 2]
+        i, j = lo, hi
+        while i <= j:
+            while a[i] < p:
+                i += 1
+            while a[j] > p:
+                j -= 1
+            if i <= j:
+                a[i], a[j] = a[j], a[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return a[k]
+
+
+@njit(cache=True, error_model="numpy")
+def _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, tpix):
+    """The sample's points within ε of (n, d), copied to tx, ty, tz (pixels to tpix). Returns (their count, their
+    residual sum of squares)."""
+    m = 0
+    ss = 0.0
+    for s in range(ns):
+        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
+        if abs(r) < eps:
+            tx[m], ty[m], tz[m], tpix[m] = sx[s], sy[s], sz[s], pix[s]
+            ss += r * r
+            m += 1
+    return m, ss
+
+
+@njit(cache=True, error_model="numpy")
+def _noise_sigma_nb(pix, m, flat, W, H, noise):
+    """The sensor's depth noise σ in the pixels pix[:m]: the upper quartile of the second differences of inverse
+    depth along the row and the column (_inv_d2); robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step
+    edges among them do not count, and a sensor that quantises depth (disparity steps: many zero differences)
+    still shows its step. −1 when fewer than 12 differences."""
+    nn = 0
+    for s in range(m):
+        q = pix[s]
+        rr = q // W
+        cc = q - rr * W
+        if 0 < cc < W - 1:
+            v = _inv_d2(flat, q, 1)
+            if v >= 0:
+                noise[nn] = v
+                nn += 1
+        if 0 < rr < H - 1:
+            v = _inv_d2(flat, q, W)
+            if v >= 0:
+                noise[nn] = v
+                nn += 1
+    if nn < 12:
+        return -1.0
+    # the upper quartile as np.percentile has it (linear between the two order statistics around it)
+    pos = 0.75 * (nn - 1)
+    lo = int(pos)
+    q_lo = _select_nb(noise, nn, lo)
+    q_hi = q_lo
+    if lo + 1 < nn:  # the next order statistic: the smallest above position lo after the selection
+        q_hi = noise[lo + 1]
+        for k in range(lo + 2, nn):
+            q_hi = min(q_hi, noise[k])
+    return (q_lo + (pos - lo) * (q_hi - q_lo)) / (1.15 * np.sqrt(6.0))
+
+
+@njit(cache=True, error_model="numpy")
+def _surface_normal_nb(pix, m, flat, W, H, fx, fy, cx, cy, nx, ny, nz, eps, lx, ly, lz):
+    """The normal of the surfaces under the pixels pix[:m], from the image (after NCC-RANSAC, Qian & Ye 2014): at
+    each pixel the cross product of the 3D differences across ±k pixels along its row and its column (k: a
+    5 cm baseline at its depth; skipped across a depth step of ε), averaged robustly (mean shift from (n), within
+    30°, 15° and 10°). A plane bridging parallel surfaces is tilted against theirs; one surface's local normals
+    scatter about its own. Returns (count, g, the standard error of the mean's direction in radians); count 0
+    when fewer than 24 local normals."""
+    c_ok = 0
+    for s in range(m):
+        q = pix[s]
+        r = q // W
+        c = q - r * W
+        z = np.float64(flat[q])
+        k = max(2, int(0.025 * fx / z + 0.5))
+        if r < k or r >= H - k or c < k or c >= W - k:
+            continue
+        zl, zr, zu, zd = np.float64(flat[q - k]), np.float64(flat[q + k]), np.float64(flat[q - k * W]), \
+            np.float64(flat[q + k * W])
+        if not (zl > 0 and zr > 0 and zu > 0 and zd > 0) or abs(zl + zr - 2 * z) > eps or abs(zu + zd - 2 * z) > eps:
+            continue
+        yr = (r - cy) / fy
+        ux, uy, uz = zr * (c + k - cx) / fx - zl * (c - k - cx) / fx, (zr - zl) * yr, zr - zl
+        xc = (c - cx) / fx
+        vx, vy, vz = (zd - zu) * xc, zd * (r + k - cy) / fy - zu * (r - k - cy) / fy, zd - zu
+        ax, ay, az = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        nn = np.sqrt(ax * ax + ay * ay + az * az)
+        if nn <= 0:
+            continue
+        if ax * nx + ay * ny + az * nz < 0:
+            nn = -nn
+        lx[c_ok], ly[c_ok], lz[c_ok] = ax / nn, ay / nn, az / nn
+        c_ok += 1
+    if c_ok < 24:
+        return 0, nx, ny, nz, 0.0
+    gx, gy, gz = nx, ny, nz
+    cnt = 0
+    spread = 0.0
+    for cos_w in (np.cos(np.radians(30.0)), np.cos(np.radians(15.0)), np.cos(np.radians(10.0))):
+        sx = sy = sz = 0.0
+        cnt = 0
+        spread = 0.0
+        for i in range(c_ok):
+            dot = lx[i] * gx + ly[i] * gy + lz[i] * gz
+            if dot > cos_w:
+                sx += lx[i]
+                sy += ly[i]
+                sz += lz[i]
+                spread += 1.0 - dot * dot
+                cnt += 1
+        if cnt < 24:
+            return 0, nx, ny, nz, 0.0
+        nrm = np.sqrt(sx * sx + sy * sy + sz * sz)
+        gx, gy, gz = sx / nrm, sy / nrm, sz / nrm
+    return cnt, gx, gy, gz, np.sqrt(spread / cnt) / np.sqrt(cnt)
+
+
+@njit(cache=True, error_model="numpy")
+def _strongest_layer_nb(tx, ty, tz, m, gx, gy, gz, band, res):
+    """The most populated layer of the points along the direction g: the offset band of width 2·band holding most
+    of them (a sliding window over their sorted offsets). Returns (count, −its mean offset: the plane's d)."""
+    for k in range(m):
+        res[k] = gx * tx[k] + gy * ty[k] + gz * tz[k]
+    r = np.sort(res[:m])
+    best, j0, j = 0, 0, 0
+    for i in range(m):
+        while r[i] - r[j] > 2.0 * band:
+            j += 1
+        if i - j + 1 > best:
+            best, j0 = i - j + 1, j
+    return best, -np.mean(r[j0:j0 + best])
+
+
+@njit(cache=True, error_model="numpy")
+def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, cam, nx, ny, nz, d, eps, beta, max_iter, state,
+                     tx, ty, tz, ux, uy, uz, uidx, noise, lx, ly, lz, cos_split):
     """Coherence of a plane's inliers (after NCC-RANSAC, Qian & Ye 2014): one surface, or a plane that bridges
     parallel surfaces (a table and the box tops on it) by cutting a strip of each?
 
-    Tested on a sample of the plane's inliers (sx…, their pixels pix). One surface's inliers scatter
-    about their least-squares plane by the sensor's noise, which the image itself gives in the same pixels: the
-    second difference of inverse depth between each pixel and its row and column neighbours (noise: scratch).
-    A bridging plane's inliers spread over ±ε instead (a tilted strip of each surface crosses the band). When
-    their RMS exceeds both ε/5 and 4 noise σ, the plane shrinks to the strongest sub-plane at ε/3 (RANSAC on
-    the same inliers, least-squares refit): one of the surfaces; the window's next plane finds the others.
-    Returns (split, n, d).
+    Tested on a sample of the plane's inliers (sx…, their pixels pix), when their residual RMS exceeds ε/5:
+    1. the surfaces' own normal from the image (_surface_normal_nb): tilted against the plane's by more than
+       max(3°, 3 standard errors), the plane is a bridge; it shrinks to the most populated layer of its inliers
+       along that normal (±ε/3, least-squares refit): one of the surfaces.
+    2. else the spread: one surface's inliers scatter about their plane by the sensor's noise σ, which the image
+       itself gives in the same pixels (_noise_sigma_nb); beyond 2σ, the strongest sub-plane at ε/3 (RANSAC on the
+       same inliers, least-squares refit), when it is another plane (tilted by > acos(cos_split) or ε/3 off at the
+       inliers' centre), is one of the surfaces.
+    The window's next plane finds the others. cam: (fx, fy, cx, cy). Returns (split, n, d).
     """
-    m = 0
-    ss = 0.0
-    for s in range(ns):
-        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
-        if abs(r) < eps:
-            ss += r * r
-            m += 1
+    m, ss = _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, uidx)
     if m < 24 or ss < m * (0.2 * eps) ** 2:  # residual RMS below ε/5: one surface (the bend test's gate)
         return False, nx, ny, nz, d
-    m = 0
-    ss = 0.0
-    nn = 0
-    for s in range(ns):
-        r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
-        if abs(r) < eps:
-            tx[m], ty[m], tz[m] = sx[s], sy[s], sz[s]
-            ss += r * r
-            m += 1
-            q = pix[s]
-            rr = q // W
-            cc = q - rr * W
-            if 0 < cc < W - 1:
-                v = _inv_d2(flat, rr * W + cc, 1)
-                if v >= 0:
-                    noise[nn] = v
-                    nn += 1
-            if 0 < rr < H - 1:
-                v = _inv_d2(flat, rr * W + cc, W)
-                if v >= 0:
-                    noise[nn] = v
-                    nn += 1
-    if nn < 12:
-        return False, nx, ny, nz, d
-    # robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step edges among them do not count, and a sensor
-    # that quantises depth (disparity steps: many zero differences) still shows its step
-    q = np.sort(noise[:nn])  # the upper quartile as np.percentile has it (linear), without its compile time
-    pos = 0.75 * (nn - 1)
-    lo = int(pos)
-    sigma = (q[lo] + (pos - lo) * (q[min(lo + 1, nn - 1)] - q[lo])) / (1.15 * np.sqrt(6.0))
-    if ss < m * (2.0 * sigma) ** 2:
+    cnt, gx, gy, gz, se = _surface_normal_nb(uidx, m, flat, W, H, cam[0], cam[1], cam[2], cam[3], nx, ny, nz, eps,
+                                            lx, ly, lz)
+    if cnt > 0 and gx * nx + gy * ny + gz * nz < np.cos(max(np.radians(3.0), 3.0 * se)):
+        n_l, gd = _strongest_layer_nb(tx, ty, tz, m, gx, gy, gz, eps / 3.0, noise)
+        if n_l >= 12:
+            c2, ax, ay, az, ad = _inlier_fit_nb(tx, ty, tz, m, gx, gy, gz, gd, eps / 3.0)
+            if c2 >= 12:
+                if ad < 0:
+                    ax, ay, az, ad = -ax, -ay, -az, -ad
+                return True, ax, ay, az, ad
+    sigma = _noise_sigma_nb(uidx, m, flat, W, H, noise)
+    if sigma < 0 or ss < m * (2.0 * sigma) ** 2:
         return False, nx, ny, nz, d
     # hypotheses scored on the whole sample (≤ 256 points): a box top may be a small share of a bridging plane's
     # inliers (docs/planes.md)
@@ -455,28 +581,24 @@ def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, 
 
 
 @njit(cache=True, error_model="numpy")
-def _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W):
-    """Put a plane's points (out[start:n_out]) back into the window after its kept points; returns the new count."""
-    k = keep
-    for a in range(start, n_out):
-        wr[k], wc[k] = out_pix[a, 0], out_pix[a, 1]
-        wx[k], wy[k], wz[k] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
-        st[out_pix[a, 0] * W + out_pix[a, 1]] = 2
-        k += 1
-    return k
-
-
-@njit(cache=True, error_model="numpy")
-def _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W):
-    """≤ 256 of a plane's points (out[start:n_out]), evenly strided, with their flat pixel indices."""
-    step = max(1, (n_out - start) // 256)
-    nb = 0
-    for a in range(start, n_out, step):
-        if nb == 256:
+def _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, W, pick, bx, by, bz, bidx):
+    """≤ 256 of the plane's inliers among the window's na points (|n·p + d| < ε), with their flat pixel indices,
+    before it takes them: ≤ 1024 points tested, evenly strided over the window (its points are in image order),
+    and ≤ 256 of their inliers kept, evenly spread. Testing before the take spares a rejected plane's second
+    pass over the window. Returns their count."""
+    step = max(1, na // 1024)
+    c = 0
+    for a in range(0, na, step):
+        if c == len(pick):
             break
-        bx[nb], by[nb], bz[nb] = out_pts[a, 0], out_pts[a, 1], out_pts[a, 2]
-        bidx[nb] = out_pix[a, 0] * W + out_pix[a, 1]
-        nb += 1
+        if abs(nx * wx[a] + ny * wy[a] + nz * wz[a] + d) < eps:
+            pick[c] = a
+            c += 1
+    nb = min(c, 256)
+    for k in range(nb):
+        a = pick[(k * c) // nb]
+        bx[k], by[k], bz[k] = wx[a], wy[a], wz[a]
+        bidx[k] = wr[a] * W + wc[a]
     return nb
 
 
@@ -489,10 +611,9 @@ def _unmark_nb(st, W, out_pix, start, n_out):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _grow_take_nb(j, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane, n_out, mom):
-    """Pixel j joins plane k when within ε of it (appended to the output, its moments added): the new n_out."""
-    r = j // W
-    c = j - r * W
+def _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane, n_out, mom):
+    """Pixel (r, c) joins plane k when within ε of it (appended to the output, its moments added): the new n_out."""
+    j = r * W + c
     z = np.float64(flat[j])
     x, y = z * tx[c], z * ty[r]
     if abs(nx * x + ny * y + nz * z + d) >= eps:
@@ -507,51 +628,63 @@ def _grow_take_nb(j, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, o
 
 
 @njit(cache=True, error_model="numpy")
-def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack, pl_n, pl_d, pl_cnt, pl_mom, out_pix, out_pts, out_plane, n_out):
+def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_cnt, pl_mom, out_pix, out_pts,
+             out_plane, n_out):
     """Attach the eligible pixels never examined (the thesis stops at nRequired) to the plane of a 4-neighbour
     when within ε of it, flood-filling from there: region growing on the organised image, one test per pixel
-    and neighbour. st: 1 unexamined, 3 a kept plane's point (its plane in lbl). Returns (n_out, pixels grown)."""
+    and neighbour. st: 1 unexamined, 3 a kept plane's point (its plane in lbl). The flood keeps rows and columns
+    on two stacks (stack_r, stack_c: scratch of ≥ H·W), sparing an integer division per pixel. Returns (n_out,
+    pixels grown)."""
     n0 = n_out
     mom = np.zeros(9)
-    for i in range(H * W):  # in image order: a sequential pass beats the (unordered) candidate list
-        if st[i] != 1:
-            continue
-        r = i // W
-        c = i - r * W
-        k = -1
-        if c > 0 and st[i - 1] == 3:
-            k = lbl[i - 1]
-        elif c < W - 1 and st[i + 1] == 3:
-            k = lbl[i + 1]
-        elif r > 0 and st[i - W] == 3:
-            k = lbl[i - W]
-        elif r < H - 1 and st[i + W] == 3:
-            k = lbl[i + W]
-        if k < 0:
-            continue
-        nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
-        mom[:] = 0.0
-        start = n_out
-        n_out = _grow_take_nb(i, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane,
-                              n_out, mom)
-        top = 0
-        if n_out > start:
-            stack[0] = i
-            top = 1
-        while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
-            top -= 1
-            j = stack[top]
-            cj = j % W
-            for q in (j - 1, j + 1, j - W, j + W):
-                if q < 0 or q >= H * W or st[q] != 1 or (q == j - 1 and cj == 0) or (q == j + 1 and cj == W - 1):
-                    continue
-                m0 = n_out
-                n_out = _grow_take_nb(q, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
-                                      out_plane, n_out, mom)
-                if n_out > m0:
-                    stack[top] = q
-                    top += 1
-        pl_cnt[k] += n_out - start
-        for a in range(9):
-            pl_mom[k, a] += mom[a]
+    for r in range(H):  # in image order: a sequential pass beats the (unordered) candidate list
+        base = r * W
+        for c in range(W):
+            i = base + c
+            if st[i] != 1:
+                continue
+            k = -1
+            if c > 0 and st[i - 1] == 3:
+                k = lbl[i - 1]
+            elif c < W - 1 and st[i + 1] == 3:
+                k = lbl[i + 1]
+            elif r > 0 and st[i - W] == 3:
+                k = lbl[i - W]
+            elif r < H - 1 and st[i + W] == 3:
+                k = lbl[i + W]
+            if k < 0:
+                continue
+            nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
+            mom[:] = 0.0
+            start = n_out
+            n_out = _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
+                                  out_plane, n_out, mom)
+            top = 0
+            if n_out > start:
+                stack_r[0], stack_c[0] = r, c
+                top = 1
+            while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
+                top -= 1
+                rj, cj = stack_r[top], stack_c[top]
+                for t in range(4):
+                    rq, cq = rj, cj
+                    if t == 0:
+                        cq -= 1
+                    elif t == 1:
+                        cq += 1
+                    elif t == 2:
+                        rq -= 1
+                    else:
+                        rq += 1
+                    if rq < 0 or rq >= H or cq < 0 or cq >= W or st[rq * W + cq] != 1:
+                        continue
+                    m0 = n_out
+                    n_out = _grow_take_nb(rq, cq, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
+                                          out_plane, n_out, mom)
+                    if n_out > m0:
+                        stack_r[top], stack_c[top] = rq, cq
+                        top += 1
+            pl_cnt[k] += n_out - start
+            for a in range(9):
+                pl_mom[k, a] += mom[a]
     return n_out, n_out - n0

@@ -9,7 +9,7 @@ import numpy as np
 from numba import njit
 
 from kosmap.frontend.fspf_kernels import (_classify_nb, _curved_nb, _grow_nb, _inlier_fit_nb, _partition_nb, _randint,
-                                          _ransac_nb, _restore_nb, _split_bridge_nb, _stride_sample_nb, _unmark_nb)
+                                          _ransac_nb, _split_bridge_nb, _unmark_nb, _window_sample_nb)
 
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
@@ -108,46 +108,57 @@ def _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats):
 @njit(cache=True, error_model="numpy")
 def _scratch_nb(subset):
     """The small per-frame buffers: the RANSAC subset (x, y, z, index), a ≤ 256-point sample of a plane with its
-    pixels, the coherence test's copies and noise, and a plane's moments."""
+    pixels, the coherence test's copies and noise, a plane's moments, the window positions the sample is
+    drawn from, and the sample's local normals."""
     f = np.float32
     return (np.empty(subset, f), np.empty(subset, f), np.empty(subset, f), np.empty(subset, np.int64),
             np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, np.int64),
             np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f), np.empty(256, f),
-            np.empty(256, np.int64), np.empty(512), np.empty(9))
+            np.empty(256, np.int64), np.empty(512), np.empty(9), np.empty(1024, np.int64),
+            np.empty(256, f), np.empty(256, f), np.empty(256, f))
+
+
+@njit(cache=True, error_model="numpy")
+def _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat, W, H, stats):
+    """The coherence test (_split_bridge_nb) on ≤ 256 of the plane's inliers sampled before it takes them: a plane
+    that is not one surface shrinks to its strongest sub-plane, which is tested once more (it may span two box
+    tops). Returns the plane to take (n, d), its class and whether that class is dropped."""
+    wr, wc, wx, wy, wz = win
+    bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise = sc[4:16]
+    pick, lx, ly, lz = sc[17], sc[18], sc[19], sc[20]
+    cam = (prm.fx, prm.fy, prm.cx, prm.cy)
+    dropped = drop[cls]
+    for _ in range(2):
+        if dropped:
+            break
+        nb = _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, W, pick, bx, by, bz, bidx)
+        split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, cam, nx, ny, nz, d, prm.eps,
+                                                     prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
+                                                     noise, lx, ly, lz, np.cos(np.radians(2.0)))
+        if not split:
+            break
+        stats[S_SPLIT] += 1
+        nx, ny, nz, d = sx_, sy_, sz_, sd_
+        cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
+                           prm.ground_max_h)
+        dropped = drop[cls]
+    return nx, ny, nz, d, cls, dropped
 
 
 @njit(cache=True, error_model="numpy")
 def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
                    stats):
-    """A plane's inliers out of the window (_partition_nb); with the coherence test on, a plane that is not one
-    surface shrinks to its strongest sub-plane and takes again. Returns (points kept in the window, inliers, n_out,
-    the plane's class, whether that class is dropped)."""
+    """A plane's inliers out of the window (_partition_nb), after the coherence test when it is on. Returns
+    (points kept in the window, inliers, n_out, the plane's class, whether that class is dropped)."""
     wr, wc, wx, wy, wz = win
-    out_pix, out_pts, out_plane = out[0], out[1], out[2]
-    bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise, mom = sc[4:]
     tail = max(prm.tail_eps, 1.0) * prm.eps
-    start = n_out
     dropped = drop[cls]
-    keep, n_in = 0, 0
-    for attempt in range(2):
-        keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
-                                                  st, lbl, n_pl, out_pix, out_pts, out_plane, n_out, mom)
-        stats[S_OUTLIERS] += n_tail
-        if attempt == 1 or not prm.coherence or dropped or n_in <= prm.n_min:
-            break
-        nb = _stride_sample_nb(out_pts, out_pix, start, n_out, bx, by, bz, bidx, W)
-        split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, nx, ny, nz, d, prm.eps,
-                                                     prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
-                                                     noise, np.cos(np.radians(2.0)))
-        if not split:
-            break
-        stats[S_SPLIT] += 1
-        na = _restore_nb(wr, wc, wx, wy, wz, keep, out_pix, out_pts, start, n_out, st, W)
-        n_out = start
-        nx, ny, nz, d = sx_, sy_, sz_, sd_
-        cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
-                           prm.ground_max_h)
-        dropped = drop[cls]
+    if prm.coherence:
+        nx, ny, nz, d, cls, dropped = _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc,
+                                                         flat, W, H, stats)
+    keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
+                                              st, lbl, n_pl, out[0], out[1], out[2], n_out, sc[16])
+    stats[S_OUTLIERS] += n_tail
     return keep, n_in, n_out, cls, dropped
 
 
@@ -287,8 +298,8 @@ def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
         n_out, n_pl = _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
                                         stats)
     if prm.grow and remaining > 0:  # our extension: the unexamined pixels next to a plane join it
-        n_out, grown = _grow_nb(flat, W, H, tx, ty, prm.eps, st, lbl, win[0], out[3], out[4], out[6], out[7], out[0],
-                                out[1], out[2], n_out)
+        n_out, grown = _grow_nb(flat, W, H, tx, ty, prm.eps, st, lbl, win[0], win[1], out[3], out[4], out[6], out[7],
+                                out[0], out[1], out[2], n_out)
         remaining -= grown
         stats[S_GROWN] = grown
     stats[S_INLIERS] = n_out
