@@ -186,6 +186,17 @@ def _workspace(npx: int, p_cap: int) -> dict:
     return ws
 
 
+def _frame_start(depth_m, cam: CameraModel, cfg: FspfConfig | None, depth_cfg: DepthConfig | None,
+                 mount: Transform | None, seed: int | None) -> tuple:
+    """What every plane filter starts a frame with: the thread's CPU clock, the configs (defaults for None), the
+    depth image checked against the camera, the plane classes for the mount, and the seed (the config's for None).
+    Returns (t0, cfg, depth_cfg, depth, classes_of, seed)."""
+    t0 = time.thread_time()
+    cfg = cfg or FspfConfig()
+    return (t0, cfg, depth_cfg or _DEFAULT_DEPTH, _prepare(depth_m, cam), _Classes(cfg, mount),
+            cfg.seed if seed is None else seed)
+
+
 def _finish(planes: Planes, cfg: FspfConfig, classes_of: _Classes, t0: float, moments=None) -> Planes:
     if cfg.merge and len(planes) > 1:
         drop = tuple(PLANE_CLASSES.index(c) for c in cfg.drop_classes)
@@ -212,12 +223,7 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     `copy=False` returns the points, plane indices and pixels as views of this thread's scratch buffers, valid
     only until its next call: for a caller that uses them at once (kosframe.py; copying them cost ~0.5 ms a frame).
     """
-    t0 = time.thread_time()
-    cfg = cfg or FspfConfig()
-    dcfg = depth_cfg or _DEFAULT_DEPTH
-    depth = _prepare(depth_m, cam)
-    classes_of = _Classes(cfg, mount)
-    seed = cfg.seed if seed is None else seed
+    t0, cfg, dcfg, depth, classes_of, seed = _frame_start(depth_m, cam, cfg, depth_cfg, mount, seed)
     H, W = depth.shape
     ws = _workspace(H * W, H * W // (cfg.n_min + 1) + 1)
     out_pix, out_pts, out_plane = ws["out_pix"], ws["out_pts"], ws["out_plane"]
@@ -249,12 +255,7 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
 def fspf(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = None, depth_cfg: DepthConfig | None = None,
          mount: Transform | None = None, seed: int | None = None) -> Planes:
     """FSPF (Biswas & Veloso; thesis Alg. 1), the baseline, with the same classes, dropping and merging."""
-    t0 = time.thread_time()
-    cfg = cfg or FspfConfig()
-    dcfg = depth_cfg or _DEFAULT_DEPTH
-    depth = _prepare(depth_m, cam)
-    classes_of = _Classes(cfg, mount)
-    seed = cfg.seed if seed is None else seed
+    t0, cfg, dcfg, depth, classes_of, seed = _frame_start(depth_m, cam, cfg, depth_cfg, mount, seed)
     H, W = depth.shape
     l = cfg.fspf_local_samples
     n_cap = cfg.fspf_max_points + l
@@ -283,12 +284,7 @@ def framed(kernel, depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None
     """A plane filter `kernel(depth, cam, cfg, depth_cfg, classes_of, drop, rng)` framed as fspf_plus and fspf frame
     theirs: the depth checked, the classes, dropping and merging, the time. For the numpy reference versions of
     the benchmark (tools/fspf_numpy.py)."""
-    t0 = time.thread_time()
-    cfg = cfg or FspfConfig()
-    dcfg = depth_cfg or _DEFAULT_DEPTH
-    depth = _prepare(depth_m, cam)
-    classes_of = _Classes(cfg, mount)
-    seed = cfg.seed if seed is None else seed
+    t0, cfg, dcfg, depth, classes_of, seed = _frame_start(depth_m, cam, cfg, depth_cfg, mount, seed)
     planes = kernel(depth, cam, cfg, dcfg, classes_of, _drop_mask(cfg), np.random.default_rng(seed))
     return _finish(planes, cfg, classes_of, t0)
 
