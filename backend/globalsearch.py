@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from kosmap.backend.mcl import _through_wall
+from kosmap.backend.mcl import _through_wall, log_likelihoods
 
 
 @dataclass
@@ -212,48 +212,12 @@ def thin(pts: np.ndarray, cell: float) -> np.ndarray:
     return np.sort(first)
 
 
-@njit(cache=True)
-def _window_loglik(table, dist, free, ox, oy, res, floor, through, tol, poses, pts, views, out):
-    h, w = table.shape
-    for p in range(poses.shape[0]):
-        x = poses[p, 0]
-        y = poses[p, 1]
-        cx = int(math.floor((x - ox) / res))
-        cy = int(math.floor((y - oy) / res))
-        if cx < 0 or cy < 0 or cx >= w or cy >= h or not free[cy, cx]:
-            out[p] = -np.inf
-            continue
-        c = math.cos(poses[p, 2])
-        s = math.sin(poses[p, 2])
-        acc = 0.0
-        for k in range(pts.shape[0]):
-            qx = x + c * pts[k, 0] - s * pts[k, 1]
-            qy = y + s * pts[k, 0] + c * pts[k, 1]
-            vx = x + c * views[k, 0] - s * views[k, 1]
-            vy = y + s * views[k, 0] + c * views[k, 1]
-            length = math.hypot(qx - vx, qy - vy) - tol
-            if through > -np.inf and _through_wall(dist, ox, oy, res, vx, vy, qx, qy, length):
-                acc += through
-                continue
-            ix = int(math.floor((qx - ox) / res))
-            iy = int(math.floor((qy - oy) / res))
-            if ix >= 0 and iy >= 0 and ix < w and iy < h:
-                acc += table[iy, ix]
-            else:
-                acc += floor
-        out[p] = acc
-
-
 def window_loglik(field, poses: np.ndarray, pts: np.ndarray, views: np.ndarray, through: float,
                   tol: float) -> np.ndarray:
     """The likelihood field model's Σ log p of a submap's end points `pts` at each pose, each point's ray traced for
     the through-wall test from where it was seen (`views`, the sensor's position per point in the submap's frame):
-    mcl.log_likelihoods with the rays of several scans."""
-    out = np.empty(len(poses))
-    _window_loglik(field.log_table, field.distance, field.free, field.origin[0], field.origin[1], field.resolution,
-                   field.floor, float(through), float(tol), np.ascontiguousarray(poses, dtype=np.float64),
-                   np.ascontiguousarray(pts, dtype=np.float64), np.ascontiguousarray(views, dtype=np.float64), out)
-    return out
+    mcl.log_likelihoods with the rays of several scans (its kernel, every point traced)."""
+    return log_likelihoods(field, poses, pts, through, tol, views=views)
 
 
 @njit(cache=True)

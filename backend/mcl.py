@@ -56,9 +56,14 @@ def _through_wall(dist, ox, oy, res, x, y, qx, qy, length):
 
 
 @njit(cache=True)
-def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, every, parts, pts, out):
+def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, every, parts, pts, views, out):
+    """out[p] = Σ_k log p(z_k | parts[p]): the field's value at each end point, `through` where the end point's ray
+    meets a wall more than `tol` before it (traced for every `every`-th point), −inf off the free cells. The ray starts
+    at the pose, or, with `views` (N×2, one row per point; an empty array: none), at views[k] in the pose's frame:
+    where that point was seen from, for a submap of several scans (backend/globalsearch.py)."""
     h, w = table.shape
     n = pts.shape[0]
+    has_views = views.shape[0] == n and n > 0
     for p in range(parts.shape[0]):
         x = parts[p, 0]
         y = parts[p, 1]
@@ -73,10 +78,18 @@ def _log_likelihoods(table, dist, free, ox, oy, res, floor, through, tol, every,
         for k in range(n):
             qx = x + c * pts[k, 0] - s * pts[k, 1]
             qy = y + s * pts[k, 0] + c * pts[k, 1]
-            if through > -np.inf and k % every == 0 and _through_wall(dist, ox, oy, res, x, y, qx, qy,
-                                                    math.hypot(pts[k, 0], pts[k, 1]) - tol):
-                acc += through
-                continue
+            if through > -np.inf and k % every == 0:
+                if has_views:
+                    vx = x + c * views[k, 0] - s * views[k, 1]
+                    vy = y + s * views[k, 0] + c * views[k, 1]
+                    length = math.hypot(qx - vx, qy - vy) - tol
+                else:
+                    vx = x
+                    vy = y
+                    length = math.hypot(pts[k, 0], pts[k, 1]) - tol
+                if _through_wall(dist, ox, oy, res, vx, vy, qx, qy, length):
+                    acc += through
+                    continue
             ix = int(math.floor((qx - ox) / res))
             iy = int(math.floor((qy - oy) / res))
             if ix >= 0 and iy >= 0 and ix < w and iy < h:
@@ -110,16 +123,23 @@ def through_fraction(field, pose: np.ndarray, pts: np.ndarray, tol: float) -> fl
                                    float(tol)))
 
 
+_NO_VIEWS = np.zeros((0, 2))
+
+
 def log_likelihoods(field, parts: np.ndarray, pts: np.ndarray, through: float = -np.inf, tol: float = 0.0,
-                    search: bool = False, every: int = 1) -> np.ndarray:
+                    search: bool = False, every: int = 1, views: np.ndarray | None = None) -> np.ndarray:
     """Σ_k log p(z_k | x_p, m) of each particle (−inf where the particle is off the free cells). With `through`
     finite, an end point whose ray meets a wall more than `tol` before it (a reading longer than the map allows:
     the pose is wrong, or the map lacks an opening) scores `through` instead of the field's value; a reading shorter
-    than the map allows (furniture, people) costs only the field's floor."""
+    than the map allows (furniture, people) costs only the field's floor. The ray starts at the particle, or with
+    `views` (N×2, in the particle's frame like `pts`) where each point was seen from."""
     out = np.empty(len(parts))
+    v = _NO_VIEWS if views is None else np.ascontiguousarray(views, dtype=np.float64)
+    if views is not None and v.shape != (len(pts), 2):
+        raise ValueError(f"views must be one (x, y) per end point: {v.shape} for {len(pts)} points")
     _log_likelihoods(field.log_table, field.distance, field.free, field.origin[0], field.origin[1], field.resolution,
                      field.floor, float(through), float(tol), max(int(every), 1), np.ascontiguousarray(parts, dtype=np.float64),
-                     np.ascontiguousarray(pts, dtype=np.float64), out)
+                     np.ascontiguousarray(pts, dtype=np.float64), v, out)
     return out
 
 
