@@ -50,7 +50,7 @@ from kosmap.frontend.fspf_biswas import Params as BiswasParams, fspf_kernel
 from kosmap.frontend.fspf_kernels import classify_many, rng_state
 from kosmap.frontend.fspf_plus import Params, fspf_plus_kernel
 from kosmap.frontend.params import StageConfig, param
-from kosmap.frontend.planes import PLANE_CLASSES, FrameStats, Planes, merge_planes, moments_from_sums, refit_from_moments
+from kosmap.frontend.planes import PLANE_CLASSES, FrameStats, Planes, merge_planes, moments_from_sums
 from kosmap.frontend.records import CameraModel, Transform
 
 __all__ = ["FspfConfig", "PLANE_CLASSES", "filter_planes", "fspf_plus", "fspf", "frame_seed", "warmup"]
@@ -247,8 +247,6 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
     planes.stats.bent, planes.stats.thin = int(stats[8]), int(stats[9])
     planes.stats.split, planes.stats.grown = int(stats[10]), int(stats[11])
     s1, s2 = moments_from_sums(pl_mom[:p])
-    if planes.stats.grown and p:  # the grown planes refitted from their moments
-        planes.normals, planes.offsets = refit_from_moments(planes.counts.astype(np.float64), s1, s2)
     return _finish(planes, cfg, classes_of, t0, (planes.counts.astype(np.float64), s1, s2))
 
 

@@ -637,54 +637,65 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
     pixels grown)."""
     n0 = n_out
     mom = np.zeros(9)
-    for r in range(H):  # in image order: a sequential pass beats the (unordered) candidate list
-        base = r * W
-        for c in range(W):
-            i = base + c
-            if st[i] != 1:
+    npx = H * W
+    words = st[:npx - npx % 8].view(np.uint64)
+    ones = np.uint64(0x0101010101010101)
+    highs = np.uint64(0x8080808080808080)
+    i = -1
+    while i + 1 < npx:  # in image order: a sequential pass beats the (unordered) candidate list
+        i += 1
+        if i % 8 == 0 and i + 8 <= npx:
+            # eight pixels at a time: skip a word none of whose bytes is 1 (the zero-byte test on st XOR 0x01…01)
+            v = words[i // 8] ^ ones
+            if ((v - ones) & ~v & highs) == 0:
+                i += 7
                 continue
-            k = -1
-            if c > 0 and st[i - 1] == 3:
-                k = lbl[i - 1]
-            elif c < W - 1 and st[i + 1] == 3:
-                k = lbl[i + 1]
-            elif r > 0 and st[i - W] == 3:
-                k = lbl[i - W]
-            elif r < H - 1 and st[i + W] == 3:
-                k = lbl[i + W]
-            if k < 0:
-                continue
-            nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
-            mom[:] = 0.0
-            start = n_out
-            n_out = _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
-                                  out_plane, n_out, mom)
-            top = 0
-            if n_out > start:
-                stack_r[0], stack_c[0] = r, c
-                top = 1
-            while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
-                top -= 1
-                rj, cj = stack_r[top], stack_c[top]
-                for t in range(4):
-                    rq, cq = rj, cj
-                    if t == 0:
-                        cq -= 1
-                    elif t == 1:
-                        cq += 1
-                    elif t == 2:
-                        rq -= 1
-                    else:
-                        rq += 1
-                    if rq < 0 or rq >= H or cq < 0 or cq >= W or st[rq * W + cq] != 1:
-                        continue
-                    m0 = n_out
-                    n_out = _grow_take_nb(rq, cq, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
-                                          out_plane, n_out, mom)
-                    if n_out > m0:
-                        stack_r[top], stack_c[top] = rq, cq
-                        top += 1
-            pl_cnt[k] += n_out - start
-            for a in range(9):
-                pl_mom[k, a] += mom[a]
+        if st[i] != 1:
+            continue
+        r = i // W
+        c = i - r * W
+        k = -1
+        if c > 0 and st[i - 1] == 3:
+            k = lbl[i - 1]
+        elif c < W - 1 and st[i + 1] == 3:
+            k = lbl[i + 1]
+        elif r > 0 and st[i - W] == 3:
+            k = lbl[i - W]
+        elif r < H - 1 and st[i + W] == 3:
+            k = lbl[i + W]
+        if k < 0:
+            continue
+        nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
+        mom[:] = 0.0
+        start = n_out
+        n_out = _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane,
+                              n_out, mom)
+        top = 0
+        if n_out > start:
+            stack_r[0], stack_c[0] = r, c
+            top = 1
+        while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
+            top -= 1
+            rj, cj = stack_r[top], stack_c[top]
+            for t in range(4):
+                rq, cq = rj, cj
+                if t == 0:
+                    cq -= 1
+                elif t == 1:
+                    cq += 1
+                elif t == 2:
+                    rq -= 1
+                else:
+                    rq += 1
+                if rq < 0 or rq >= H or cq < 0 or cq >= W or st[rq * W + cq] != 1:
+                    continue
+                m0 = n_out
+                n_out = _grow_take_nb(rq, cq, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
+                                      out_plane, n_out, mom)
+                if n_out > m0:
+                    stack_r[top], stack_c[top] = rq, cq
+                    top += 1
+        pl_cnt[k] += n_out - start
+        for a in range(9):
+            pl_mom[k, a] += mom[a]
     return n_out, n_out - n0

@@ -200,6 +200,30 @@ def _accept_plane_nb(prm, mom, n_in, start, n_out, out_pts, bx, by, bz, stats):
 
 
 @njit(cache=True, error_model="numpy")
+def _refit_planes_nb(pl_n, pl_d, pl_cnt, pl_mom, n_pl):
+    """Each plane refitted from its inliers' moments (after growing added some), rectified: the least-squares plane
+    (the covariance's smallest eigenvector). Compiled, as a 3×3 eigh per plane costs less here than numpy's call."""
+    C = np.empty((3, 3))
+    for k in range(n_pl):
+        mom = pl_mom[k]
+        inv = 1.0 / pl_cnt[k]
+        mx, my, mz = mom[0] * inv, mom[1] * inv, mom[2] * inv
+        C[0, 0] = mom[3] * inv - mx * mx
+        C[0, 1] = C[1, 0] = mom[4] * inv - mx * my
+        C[0, 2] = C[2, 0] = mom[5] * inv - mx * mz
+        C[1, 1] = mom[6] * inv - my * my
+        C[1, 2] = C[2, 1] = mom[7] * inv - my * mz
+        C[2, 2] = mom[8] * inv - mz * mz
+        v = np.linalg.eigh(C)[1]
+        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+        d = -(nx * mx + ny * my + nz * mz)
+        if d < 0:
+            nx, ny, nz, d = -nx, -ny, -nz, -d
+        pl_n[k, 0], pl_n[k, 1], pl_n[k, 2] = nx, ny, nz
+        pl_d[k] = d
+
+
+@njit(cache=True, error_model="numpy")
 def _record_plane_nb(out, n_pl, nx, ny, nz, d, cls, n_in, mom):
     pl_n, pl_d, pl_cls, pl_cnt, pl_mom = out[3], out[4], out[5], out[6], out[7]
     pl_n[n_pl, 0], pl_n[n_pl, 1], pl_n[n_pl, 2] = nx, ny, nz
@@ -302,6 +326,8 @@ def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
                                 out[0], out[1], out[2], n_out)
         remaining -= grown
         stats[S_GROWN] = grown
+        if grown:  # the grown planes refitted from their moments
+            _refit_planes_nb(out[3], out[4], out[6], out[7], n_pl)
     stats[S_INLIERS] = n_out
     stats[S_REMAINING] = remaining
     return n_out, n_pl
