@@ -27,8 +27,6 @@ class MapField:
     """Look-up tables over the map's cells (row 0 = the map's bottom, origin = lower-left corner of cell (0, 0))."""
 
     log_table: np.ndarray  # H×W float32: log(z_hit·exp(−d²/2σ_hit²) + z_rand/z_max)
-    search_table: np.ndarray  # the same with σ_search: while the particles are sparse (global search), each stands
-    # for a neighbourhood of poses, and a sharp field would judge it by its exact pose alone
     match: np.ndarray  # H×W float32: exp(−d²/2σ_match²), the scan matcher's field (frontend/matcher.py)
     match_coarse: tuple  # the same with 4σ_match and 2σ_match: coarse to fine, as the SLAM front end matches
     free: np.ndarray  # H×W bool: cells a pose may lie in
@@ -77,7 +75,7 @@ class MapField:
 
 
 def map_field(data: np.ndarray, resolution: float, origin, sigma_hit: float, z_hit: float, z_rand: float,
-              z_max: float, match_sigma: float, sigma_search: float | None = None) -> MapField:
+              z_max: float, match_sigma: float) -> MapField:
     """The likelihood fields of an occupancy grid (nav_msgs semantics: −1 unknown, 0..100; row 0 the bottom; origin
     the lower-left corner, no yaw): its occupied cells are the walls, its free cells where a robot may be."""
     data = np.asarray(data)
@@ -93,11 +91,9 @@ def map_field(data: np.ndarray, resolution: float, origin, sigma_hit: float, z_h
         d = surface = np.full(data.shape, np.inf)
     floor = math.log(z_rand / z_max)
     table = np.log(z_hit * np.exp(-0.5 * (surface / sigma_hit) ** 2) + z_rand / z_max).astype(np.float32)
-    ss = sigma_hit if sigma_search is None else sigma_search
-    search = np.log(z_hit * np.exp(-0.5 * (surface / ss) ** 2) + z_rand / z_max).astype(np.float32)
     match = np.exp(-0.5 * (surface / match_sigma) ** 2).astype(np.float32)
     free = (data >= 0) & (data <= FREE_MAX)
     coarse = tuple(np.exp(-0.5 * (surface / (k * match_sigma)) ** 2).astype(np.float32) for k in (4.0, 2.0))
-    return MapField(np.ascontiguousarray(table), np.ascontiguousarray(search), np.ascontiguousarray(match), coarse, free,
+    return MapField(np.ascontiguousarray(table), np.ascontiguousarray(match), coarse, free,
                     np.minimum(d, 1e6).astype(np.float32), (float(origin[0]), float(origin[1])), res,
                     floor, float(match_sigma))

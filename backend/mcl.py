@@ -127,7 +127,7 @@ _NO_VIEWS = np.zeros((0, 2))
 
 
 def log_likelihoods(field, parts: np.ndarray, pts: np.ndarray, through: float = -np.inf, tol: float = 0.0,
-                    search: bool = False, every: int = 1, views: np.ndarray | None = None) -> np.ndarray:
+                    every: int = 1, views: np.ndarray | None = None) -> np.ndarray:
     """Σ_k log p(z_k | x_p, m) of each particle (−inf where the particle is off the free cells). With `through`
     finite, an end point whose ray meets a wall more than `tol` before it (a reading longer than the map allows:
     the pose is wrong, or the map lacks an opening) scores `through` instead of the field's value; a reading shorter

@@ -101,8 +101,7 @@ def field_for(grid, cfg: LocalizeConfig, z_max: float) -> MapField:
     if abs(grid.origin[2]) > 1e-9:
         raise LocalizeError(f"the map's origin has a yaw of {math.degrees(grid.origin[2]):.1f}°; kosmap localize "
                             f"takes maps whose origin yaw is 0 (rotate the image instead)")
-    f = map_field(grid.data, grid.resolution, grid.origin, cfg.sigma_hit, cfg.z_hit, cfg.z_rand, z_max, cfg.match_sigma,
-                  cfg.sigma_search)
+    f = map_field(grid.data, grid.resolution, grid.origin, cfg.sigma_hit, cfg.z_hit, cfg.z_rand, z_max, cfg.match_sigma)
     if not f.free.any():
         raise LocalizeError("the map has no free cell to localize in (free: below map_server's free_thresh); check "
                             "its image and thresholds")
@@ -180,8 +179,10 @@ class _Filter:
         beams = mcl.beam_subset(pts, c.max_beams)
         through = math.log(c.z_through / self.z_max) if c.z_through > 0 else -math.inf
         searching = not self.found or self.lost_since >= 0
+        # while the pose is not found, a reading counts as through a wall only beyond sigma_search: a sparse global
+        # set's particle stands for the poses round it
         ll = mcl.log_likelihoods(self.f, self.parts, beams, through, c.sigma_search if searching else c.sigma_hit,
-                                 searching, c.through_every)
+                                 c.through_every)
         q = np.exp(ll / max(len(beams), 1))  # −inf → 0: per-beam geometric mean likelihood of each particle
         self.rec.update(float(np.sum(self.w * q)))
         temper = min(1.0, c.effective_beams / max(len(beams), 1))
@@ -269,14 +270,19 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
         # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
         whole = est.spread_xy <= conv_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
-        held = (est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and est.mode_xy <= conv_xy
-                and est.mode_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio)
+        mode = est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and flt.rec.ratio >= cfg.lost_ratio
+        held = mode and est.mode_xy <= conv_xy and est.mode_yaw <= conv_yaw
         if update:
             flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0
         if ws is None:
             converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
-        else:  # claimed first, and after a restart, only where the window's search confirms it
-            converged = (held and flt.tracking) or flt.confirmed or (
+        else:  # claimed first, and after a restart, only where the window's search confirms it. A claimed pose is
+            # kept while the scans fit as well as they did (w_fast/w_slow), however the particles spread: along a
+            # corridor the narrow scan sees two parallel walls, and the odometry's noise spreads them along it, in
+            # one mode or several, until a crossing wall is in view; a wrong pose shows in the measurements, in the
+            # readings through walls and in the window's checks
+            keep = flt.rec.ratio >= cfg.lost_ratio
+            converged = (keep and flt.tracking) or flt.confirmed or (
                 flt.found and not flt.restarted and flt.tight >= cfg.converged_updates)
         flt.confirmed = False
         flt.tracking = converged

@@ -42,7 +42,7 @@ class LocalizeConfig(StageConfig):
     z_through: float = param(0.001, lo=0.0, hi=1.0, doc="… of a reading that passes through a wall by more than sigma_hit (a glass pane, an opening the map lacks); 0 = no ray check, the plain likelihood field")
     through_every: int = param(3, lo=1, doc="the through-wall check traces every this many of the max_beams end points (the tracing is most of a filter update's time)")
     sigma_hit: float = param(0.2, lo=0.0, lo_open=True, doc="… its standard deviation (AMCL laser_sigma_hit)", unit="m")
-    sigma_search: float = param(0.5, lo=0.0, lo_open=True, doc="sigma_hit (and the through-wall tolerance) while the pose is not found: a sparse global set's particle stands for poses ~0.3 m and ~15° around it, and with a 4 m reach 15° moves an end point ~1 m", unit="m")
+    sigma_search: float = param(0.5, lo=0.0, lo_open=True, doc="the through-wall tolerance (sigma_hit once found) while the pose is not found: a sparse global set's particle stands for poses ~0.3 m and ~15° around it, and with a 4 m reach 15° moves an end point ~1 m", unit="m")
     max_beams: int = param(30, lo=1, doc="end points per filter update, evenly spread over the scan (AMCL laser_max_beams)")
     effective_beams: float = param(8.0, lo=0.0, lo_open=True, doc="a scan's log-likelihood counts as this many independent end points at most: neighbouring returns off one wall are not independent (Probabilistic Robotics §6.4.1), and summed as if they were, one narrow scan collapses a global set onto a wrong room corner")
     min_points: int = param(10, lo=1, doc="a scan with fewer end points does not update the filter")

@@ -88,18 +88,25 @@ class WindowSearch:
 
     def _rigid(self, z_max: float, v: Verdict) -> Verdict:
         """The whole window's claim, held against its own last check_m: a rigid submap's recent part fits where the
-        whole does, so when that part alone is sure of another place, the window spans a jump the wheels did not see
+        whole does, so when that part alone is sure of another place and its readings pass through the walls of the
+        whole's place, the window spans a jump the wheels did not see
         (a robot carried, the odometry continuous): its older scans, stitched across the jump, fit a look-alike
         (in a room symmetric under a quarter turn, the place the robot was carried by that turn) better than the
         truth. Then nothing is claimed, the window is cut to the recent part, and that part's place, when its readings
         also keep clear of its walls (the recent part may still hold scans from before the jump), is the sure one the
         next search must confirm."""
         c = self.cfg
-        recent, sure = self._search(z_max, *self.window.submap(c.check_m), None, v.poses[0])
+        sub, views = self.window.submap(c.check_m)
+        recent, sure = self._search(z_max, sub, views, None, v.poses[0])
         if recent.prob[0] < c.claim_p:  # the recent part alone may be unsure: that refutes nothing
             return v
         d = recent.poses[0] - v.poses[0]
         if math.hypot(d[0], d[1]) < c.search_apart and abs(se2.wrap(d[2])) < math.radians(c.search_apart_deg):
+            return v
+        # and the recent part refutes the whole's place: its readings pass through that place's walls (a few metres
+        # of scans can be sure of a look-alike by their own noise, as the checks can: no proof by itself)
+        keep = gs.thin(sub, 2.0 * c.sigma_hit)
+        if gs.window_through(self.f, v.poses[0], sub[keep], views[keep], c.through_tol) <= c.lost_through:
             return v
         self.window.keep_recent(c.check_m)
         self.sure = sure

@@ -191,7 +191,7 @@ def _splice(src, dst, cut_s: float, resume_s: float):
 @pytest.mark.parametrize("cut, resume, detect_s, recover_s", [
     # carried 1.8 m and turned a quarter, onto the room's own quarter-turn symmetry: the bare 5 x 5 m plan fits the
     # held pose as well as the truth until the door to the side room is in view. Measured: the wrong pose abandoned
-    # (lost) 19.0 s after the carry, the right one claimed 24.4 s after it, then 0.023 m RMSE
+    # (lost) 19-20 s after the carry, the right one claimed 21-24 s after it, then 0.023-0.047 m RMSE
     (12.0, 20.0, 25.0, 30.0),
     # carried 2.1 m and turned a quarter off the symmetry: the held pose's readings soon pass through its walls.
     # Measured: the right pose held again 2.8 s after the carry (the filter's random particles find it before the
@@ -332,9 +332,15 @@ def test_office_look_alike_corridors_are_not_claimed_before_they_differ(tmp_path
     further east and the north corridor driven west (a half turn of the floor) as well as the truth; the first
     difference the blueprint has is the lab's door at x = 27 on the inner wall. No pose may be claimed at a wrong
     place meanwhile, and the right one is claimed once that door is in view."""
-    log, plan = _simulate("office", tmp_path, 42.0, seed=1)
+    log, plan = _simulate("office", tmp_path, 50.0, seed=1)
     r = localized(lambda p: log, plan)
     tracking = r.status == "tracking"
     assert tracking.any(), r.loc
     assert np.max(r.err[tracking]) <= 0.5, r.err[tracking]  # never a look-alike
     assert r.loc["converged_s"] <= 40.0, r.loc  # the door comes into view at ~31 s
+    # then held along the corridor, where the particles spread along it (measured: claimed at 37.9 s, 0.071 m RMSE,
+    # every scan tracked to the end; when the particles' mode had to be tight and hold 60 % of the weight, the pose
+    # was called lost at 48-49 s, the refined pose 0.02-0.1 m off)
+    after = r.t >= r.loc["converged_s"]
+    assert np.all(tracking[after]) and not r.loc["lost"], r.loc
+    assert np.sqrt(np.mean(r.err[after] ** 2)) <= 0.12, r.err[after]
