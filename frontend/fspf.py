@@ -18,11 +18,13 @@ Our additions, each with a switch in FspfConfig: after the first plane, RANSAC r
 remaining points (`planes_per_window`, 1 = the thesis), so a window that straddles a wall and the floor
 keeps both; a plane's noise tail (ε … `tail_eps`·ε) seeds no further plane; planes whose inliers are a
 thin strip (`min_width`) or bend like a strip of a cylinder (`bend_max`: people, bins, pillars) are
-rejected; a plane whose inliers are not one surface (`coherence`: their spread about it exceeds the sensor
-noise measured in the same pixels, as when a tilted plane cuts a strip of a table and of the box tops on it)
-shrinks to its strongest sub-plane and takes its inliers again; after the stop, the unexamined pixels next to
+rejected; a plane whose inliers are not one surface (`coherence`: tested on a sample before it takes them, the
+surfaces' own normal from the image's local normals is tilted against the plane's, as when a tilted plane cuts a
+strip of a table and of the box tops on it, or their spread about it exceeds the sensor noise measured in the same
+pixels) shrinks to one of the surfaces (the most populated layer along their normal, or its strongest sub-plane)
+before it takes its inliers; after the stop, the unexamined pixels next to
 a plane and within ε of it join it (`grow`, region growing on the organised image); coplanar planes are
-merged when the merged plane stays one surface (frontend/planes.py).
+merged when the merged plane stays one surface (frontend/planes.py) and each patch's centroid lies within ε of it.
 
 Coverage against time: the thesis's stop (nRequired = analysed_fraction of the eligible pixels) leaves the
 rest unexamined; windows land at random, so which 10 % that is varies by seed (the labelled mOSD table:
@@ -80,8 +82,9 @@ class FspfConfig(StageConfig):
                             "(a quadratic explaining > 50 % of their residuals: strips of people, bins, pillars); 0 = off")
     min_width: float = param(0.5, lo=0.0, doc="FSPF+: reject a plane whose inliers spread less than this many ε "
                              "(std. dev.) across their second direction: a thin strip fits many planes; 0 = off")
-    coherence: bool = param(True, doc="FSPF+: a plane whose inliers spread evenly over ±ε instead of crowding around it "
-                            "bridges parallel surfaces (a table and the box tops on it): it shrinks to the strongest one")
+    coherence: bool = param(True, doc="FSPF+: a plane tilted against the surfaces under its inliers (their local normals) "
+                            "or spread over ±ε instead of crowding around it bridges parallel surfaces (a table and the "
+                            "box tops on it): it shrinks to the strongest one")
     grow: bool = param(True, doc="FSPF+: after the stop (analysed_fraction), unexamined pixels within ε of a 4-neighbour's "
                        "plane join it (region growing): the coverage of a full pass for a fraction of its time")
     tail_eps: float = param(2.0, lo=1.0, doc="FSPF+: a plane's points from ε to this many ε are its noise tail: "

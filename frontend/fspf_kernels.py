@@ -502,11 +502,12 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, cam, nx, ny, nz, d, eps, b
        itself gives in the same pixels (_noise_sigma_nb); beyond 2σ, the strongest sub-plane at ε/3 (RANSAC on the
        same inliers, least-squares refit), when it is another plane (tilted by > acos(cos_split) or ε/3 off at the
        inliers' centre), is one of the surfaces.
-    The window's next plane finds the others. cam: (fx, fy, cx, cy). Returns (split, n, d).
+    The window's next plane finds the others. cam: (fx, fy, cx, cy). Returns (how: 0 one surface, 1 a layer along
+    the surfaces' normal, 2 the strongest sub-plane; n, d).
     """
     m, ss = _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, uidx)
     if m < 24 or ss < m * (0.2 * eps) ** 2:  # residual RMS below ε/5: one surface (the bend test's gate)
-        return False, nx, ny, nz, d
+        return 0, nx, ny, nz, d
     cnt, gx, gy, gz, se = _surface_normal_nb(uidx, m, flat, W, H, cam[0], cam[1], cam[2], cam[3], nx, ny, nz, eps,
                                             lx, ly, lz)
     if cnt > 0 and gx * nx + gy * ny + gz * nz < np.cos(max(np.radians(3.0), 3.0 * se)):
@@ -516,28 +517,28 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, cam, nx, ny, nz, d, eps, b
             if c2 >= 12:
                 if ad < 0:
                     ax, ay, az, ad = -ax, -ay, -az, -ad
-                return True, ax, ay, az, ad
+                return 1, ax, ay, az, ad
     sigma = _noise_sigma_nb(uidx, m, flat, W, H, noise)
     if sigma < 0 or ss < m * (2.0 * sigma) ** 2:
-        return False, nx, ny, nz, d
+        return 0, nx, ny, nz, d
     # hypotheses scored on the whole sample (≤ 256 points): a box top may be a small share of a bridging plane's
     # inliers (docs/planes.md)
     ok, ax, ay, az, ad = _ransac_nb(tx, ty, tz, m, eps / 3.0, beta, m, max_iter, state, ux, uy, uz, uidx)
     if not ok:
-        return False, nx, ny, nz, d
+        return 0, nx, ny, nz, d
     cnt, ax, ay, az, ad = _inlier_fit_nb(tx, ty, tz, m, ax, ay, az, ad, eps / 3.0)
     if cnt < 12:
-        return False, nx, ny, nz, d
+        return 0, nx, ny, nz, d
     if ax * nx + ay * ny + az * nz < 0:
         ax, ay, az, ad = -ax, -ay, -az, -ad
     # the same plane within its noise (a noisy surface, not two): no split. Another plane tilts by degrees
     # (a strip of each surface) or, parallel, sits ε/3 or more away at the inliers' centre.
     cx, cy, cz = np.mean(tx[:m]), np.mean(ty[:m]), np.mean(tz[:m])
     if ax * nx + ay * ny + az * nz > cos_split and abs(ax * cx + ay * cy + az * cz + ad - (nx * cx + ny * cy + nz * cz + d)) < eps / 3.0:
-        return False, nx, ny, nz, d
+        return 0, nx, ny, nz, d
     if ad < 0:
         ax, ay, az, ad = -ax, -ay, -az, -ad
-    return True, ax, ay, az, ad
+    return 2, ax, ay, az, ad
 
 
 @njit(cache=True, error_model="numpy")

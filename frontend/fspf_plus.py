@@ -121,8 +121,9 @@ def _scratch_nb(subset):
 @njit(cache=True, error_model="numpy")
 def _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat, W, H, stats):
     """The coherence test (_split_bridge_nb) on ≤ 256 of the plane's inliers sampled before it takes them: a plane
-    that is not one surface shrinks to its strongest sub-plane, which is tested once more (it may span two box
-    tops). Returns the plane to take (n, d), its class and whether that class is dropped."""
+    that is not one surface shrinks to one of them: a layer along the surfaces' own normal, or its strongest
+    sub-plane, which is tested once more (it may span two box tops). Returns the plane to take (n, d), its class
+    and whether that class is dropped."""
     wr, wc, wx, wy, wz = win
     bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise = sc[4:16]
     pick, lx, ly, lz = sc[17], sc[18], sc[19], sc[20]
@@ -135,13 +136,15 @@ def _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, 
         split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, cam, nx, ny, nz, d, prm.eps,
                                                      prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
                                                      noise, lx, ly, lz, np.cos(np.radians(2.0)))
-        if not split:
+        if split == 0:
             break
         stats[S_SPLIT] += 1
         nx, ny, nz, d = sx_, sy_, sz_, sd_
         cls = _classify_nb(nx, ny, nz, d, axes[0], axes[1], axes[2], prm.sl_min, prm.sl_max, prm.cam_h,
                            prm.ground_max_h)
         dropped = drop[cls]
+        if split == 1:  # a layer along the surfaces' own normal is one surface already
+            break
     return nx, ny, nz, d, cls, dropped
 
 
