@@ -6,7 +6,9 @@ and a level default then calls every floor "slanted". Without a mount, the up di
 dominant horizontal plane family: the planes parallel to one another (floor, table tops, ceiling, flipped to one
 side) with the most points, among normals within `max_tilt_deg` of the previous frame's up (the tracked prior;
 a level camera at the start). Walls are perpendicular to it and never win: they lie ~90° from the prior. The
-camera's height above the floor is the offset of the farthest up-facing plane of that family.
+camera's height above the floor is tracked over the sequence (FloorTracker), so a desk filling the view is raised,
+not ground; a level plane at the floor's height is ground even when its fit tilts a little more than
+slanted_min_deg (on_floor).
 """
 
 from __future__ import annotations
@@ -83,22 +85,29 @@ FRAME_PERIOD = 1.0 / 30.0  # s between frames when they carry no time stamps (a 
 class FloorTracker:
     """The camera's height above the floor over a handheld sequence, through the frames that do not see the floor.
 
-    Each frame's level, up-facing planes are explained by one camera height c above the floor: plane j then lies
-    c − d_j above it, on the floor (0) or on a level surface seen before (a desk, a shelf: `levels`, each measured
-    in a frame that saw the floor, against it, so no error accumulates). The candidates are the farthest plane on
-    the floor, or any plane on any known level; each costs its planes' truncated squares (a plane's points ×
-    (its height's distance to the nearest level / its gate)², at most its points; the gate k_sigma·√2·σ of both
-    planes' depth noise, σ(z) at their points' mean depth), and within the hand's reach of the last height
-    (HAND_SPEED × the time since, the motion model) the cheapest wins, then the nearest. The farthest plane is the
-    floor when the winner puts it there (within its gate): the other planes then measure or refine the levels. So a
-    frame that sees only the desk still puts the floor a desk's height further down (docs/planes.md)."""
+    Motion model: between frames the hand moves the camera by at most HAND_SPEED × their interval (`move`); a
+    surface seen twice agrees within its gate k_sigma·√2·σ(z) (σ: the depth noise at its points' mean depth).
+    Each frame's level, up-facing planes (distance d below the camera, points):
+    - a plane within reach of the tracked floor (move + its gate) is the floor: the nearest such sets the height;
+    - a plane farther down than that is a lower floor only when the next frame sees it again (a single far plane
+      may be a misfit: Kinect v1 offsets at 3 m stray by decimetres): the farthest seen in both frames;
+    - when every plane lies higher (a desk filling the view), the camera height is the one that puts the frame's
+      planes best on the floor and the level surfaces measured before (`levels`, heights above the floor measured
+      in frames that saw both, so no error accumulates), within reach of the last: least truncated squares (a
+      plane's points × (its height's distance to the nearest level / its gate)², at most its points), then the
+      nearest. With no level known yet the farthest plane is taken for the floor.
+    So a frame that sees only the desk still puts the floor a desk's height further down (docs/planes.md). Frames
+    without a time stamp (NaN) have no motion model: each one's farthest level plane is its floor."""
 
     height: float = float("nan")  # the camera's height above the floor
     levels: np.ndarray = field(default_factory=lambda: np.zeros(0))  # known level surfaces' heights above the floor
     weights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # points that measured each
+    sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # floor frames that measured each
+    spread: np.ndarray = field(default_factory=lambda: np.zeros(0))  # each level's σ: its and the floor's noise
     step: float = 0.15  # a level surface lower than this is the floor ([fspf] ground_max_height)
     k_sigma: float = 3.0
-    stamp: float = float("nan")  # s, the last frame with a height
+    stamp: float = float("nan")  # s, the last frame with level planes
+    lower: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the last frame's planes below the floor
 
     def update(self, offsets: np.ndarray, depths: np.ndarray, counts: np.ndarray, stamp: float) -> float:
         """The camera's height above the floor after a frame's level, up-facing planes (distance below the camera,
@@ -106,40 +115,69 @@ class FloorTracker:
         d, w = np.asarray(offsets, float), np.asarray(counts, float)
         if not len(d):
             return self.height
-        far = int(np.argmax(d))
         sigma = depth_sigma(depths)
-        gates = self.k_sigma * np.sqrt(2.0) * np.hypot(sigma, sigma[far])
-        ok = np.isfinite(stamp) and np.isfinite(self.stamp) and stamp > self.stamp
-        reach = HAND_SPEED * ((stamp - self.stamp) if ok else FRAME_PERIOD) + gates[far]
+        reach = HAND_SPEED * ((stamp - self.stamp) if np.isfinite(stamp) and np.isfinite(self.stamp)
+                              and stamp > self.stamp else FRAME_PERIOD) + self.k_sigma * np.sqrt(2.0) * sigma
         self.stamp = stamp
-        if np.isfinite(self.height) and d[far] < self.height - reach and len(self.levels):
-            # the farthest plane lies higher than the hand could have lifted the floor: a raised surface; the height
-            # that puts the frame's planes best on the floor and the known levels, nearest the last one
-            cand = (d[:, None] + self.levels[None, :]).ravel()
-            cand = cand[np.abs(cand - self.height) <= reach]
-            if len(cand):
-                known = np.concatenate([[0.0], self.levels])
-                res = np.abs((cand[:, None] - d[None, :])[:, :, None] - known[None, None, :]).min(axis=2)
-                cost = np.minimum((res / gates[None, :]) ** 2, 1.0) @ w
-                best = np.flatnonzero(cost <= cost.min() + 1e-9 * w.sum())
-                self.height = float(cand[best[np.argmin(np.abs(cand[best] - self.height))]])
-                return self.height
-        self.height = float(d[far])  # the floor in view: it sets the height and measures the levels
-        self.learn(self.height - d, w, gates)
+        if not np.isfinite(self.height) or not np.isfinite(stamp):  # the first frame, or frames without times (no
+            return self.floor_at(int(np.argmax(d)), d, w, sigma)     # motion model): the farthest plane is the floor
+        lower, self.lower = self.lower, d[d > self.height + reach]
+        below = d > self.height + reach
+        again = below & (np.abs(d[:, None] - lower[None, :]) <= reach[:, None]).any(axis=1)
+        if again.any():  # a lower surface seen in two frames running: the farthest such is the floor
+            return self.floor_at(int(np.argmax(np.where(again, d, -np.inf))), d, w, sigma)
+        near = np.abs(d - self.height) <= reach
+        if not near.any() and below.any():  # a lower floor not yet confirmed, the rest raised: the height as it was
+            return self.height
+        if not near.any() and not len(self.levels):
+            return self.floor_at(int(np.argmax(d)), d, w, sigma)
+        self.height = self.relocate(d, w, sigma, reach)
+        floor = np.abs(d - self.height) < self.k_sigma * np.sqrt(2.0) * sigma  # the planes it puts on the floor
+        if floor.any():
+            return self.floor_at(int(np.argmin(np.where(floor, np.abs(d - self.height), np.inf))), d, w, sigma)
         return self.height
 
-    def learn(self, heights: np.ndarray, counts: np.ndarray, gates: np.ndarray) -> None:
-        """Measure the level surfaces from one frame's planes' heights above the floor (a floor frame)."""
-        for h, n, g in zip(heights, counts, gates):
+    def relocate(self, d: np.ndarray, w: np.ndarray, sigma: np.ndarray, reach: np.ndarray) -> float:
+        """The camera height that puts the frame's planes best on the floor and the known levels, within reach of
+        the last (class doc); the last when none is."""
+        sure = self.sightings >= 2  # measured in two floor frames: not one plane's misfit
+        levels = np.concatenate([[0.0], self.levels[sure]])
+        spread = np.concatenate([[0.0], self.spread[sure]])  # each level's σ (the floor's noise when measured)
+        cand = (d[:, None] + levels[None, :])
+        cand = cand[np.abs(cand - self.height) <= reach[:, None]]
+        if not len(cand):
+            return self.height
+        gates = self.k_sigma * np.sqrt(2.0) * np.hypot(sigma[:, None], spread[None, :])  # planes × levels
+        res = np.abs((cand[:, None] - d[None, :])[:, :, None] - levels[None, None, :]) / gates[None]
+        cost = np.minimum(res.min(axis=2) ** 2, 1.0) @ w
+        best = np.flatnonzero(cost <= cost.min() + 1e-9 * w.sum())
+        return float(cand[best[np.argmin(np.abs(cand[best] - self.height))]])
+
+    def floor_at(self, j: int, d: np.ndarray, w: np.ndarray, sigma: np.ndarray) -> float:
+        """Plane j is the floor: it sets the camera's height, and the frame's other planes measure the levels."""
+        self.height = float(d[j])
+        self.learn(self.height - d, w, np.hypot(sigma, sigma[j]))
+        return self.height
+
+    def learn(self, heights: np.ndarray, counts: np.ndarray, sigmas: np.ndarray) -> None:
+        """Measure the level surfaces from one frame's planes' heights above the floor (a floor frame) and their σ."""
+        seen = np.zeros(len(self.levels), bool)
+        for h, n, sg in zip(heights, counts, sigmas):
             if h < self.step:
                 continue
             k = int(np.argmin(np.abs(self.levels - h))) if len(self.levels) else -1
-            if k >= 0 and abs(self.levels[k] - h) < g:
+            if k >= 0 and abs(self.levels[k] - h) < self.k_sigma * np.sqrt(2.0) * np.hypot(sg, self.spread[k]):
                 self.levels[k] = (self.weights[k] * self.levels[k] + n * h) / (self.weights[k] + n)
+                self.spread[k] = (self.weights[k] * self.spread[k] + n * sg) / (self.weights[k] + n)
                 self.weights[k] += n
+                self.sightings[k] += 0 if seen[k] else 1
+                seen[k] = True
             else:
                 self.levels = np.append(self.levels, h)
+                self.spread = np.append(self.spread, sg)
                 self.weights = np.append(self.weights, n)
+                self.sightings = np.append(self.sightings, 1)
+                seen = np.append(seen, True)
 
 
 @dataclass
@@ -178,7 +216,24 @@ def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
     up, fwd, left = axes_from_up(up)
     planes.classes = classify(planes.normals, up, fwd, left, cfg.slanted_min_deg, cfg.slanted_max_deg, planes.offsets,
                               height, cfg.ground_max_height)
+    if np.isfinite(height):
+        planes.classes[on_floor(planes, up, height, cfg.ground_max_height)] = PLANE_CLASSES.index("ground")
     return drop_classes(planes, cfg)
+
+
+def on_floor(planes: Planes, up: np.ndarray, height: float, step: float, family_deg: float = 5.0,
+             k: float = 2.0) -> np.ndarray:
+    """The planes lying on the floor (P bool): up-facing, of the level family (within family_deg of up, as
+    dominant_up groups them), their points' heights above the floor within `step` (mean ± k σ). A real floor's fit
+    may tilt a few degrees past slanted_min_deg (a Kinect's depth error grows with range: on TUM fr1_xyz a tenth
+    of the floor planes tilt 3–8° off the floor's normal); at the floor's height it is the floor all the same."""
+    pts = planes.points.astype(np.float64)
+    h = height + pts @ up  # each point's height above the floor
+    n = np.maximum(planes.counts, 1)
+    mean = np.bincount(planes.plane, h, len(planes)) / n
+    sd = np.sqrt(np.maximum(np.bincount(planes.plane, h * h, len(planes)) / n - mean ** 2, 0.0))
+    level = planes.normals @ up > np.cos(np.radians(family_deg))
+    return level & (np.abs(mean) + k * sd <= step)
 
 
 def drop_classes(planes: Planes, cfg) -> Planes:

@@ -97,16 +97,18 @@ def test_gravity_from_the_frames_agrees_with_the_kinects_accelerometer(data_dir)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, 1, 2])
 def test_tum_floor_is_ground_with_gravity_from_the_frames(data_dir, seed):
     """TUM fr1_xyz, a handheld camera tilted over a desk, no mount, no IMU used: gravity from the frames, the floor's
-    height tracked through the frames that see only the desk (frontend/gravity.FloorTracker). The label: up is the
-    Kinect's accelerometer turned into the mocap frame by the ground-truth poses and averaged over the sequence
-    (the hand's accelerations cancel), then turned back into each frame; a floor plane is level (within 10° of that
-    up: the label's own spread per sample is ~3.5°) and 1.3 m or more below the camera (the desk lies 0.5–1.2 m
-    below it). Of the floor planes ≥ 2000 px ~90 % come out ground (the rest: fits tilted 3–8° off the floor's
-    normal, beyond the 3° of [fspf] slanted_min_deg); ≥ 98 % of the ground planes are level within 5°, and only
-    the frames before the floor is first seen take the desk for it (the ground planes off the floor)."""
+    height tracked through the frames that see only the desk (frontend/gravity.FloorTracker), a level plane at the
+    floor's height ground even when its fit tilts past [fspf] slanted_min_deg (gravity.on_floor).
+    The label, from the ground-truth poses: the Kinect's accelerometer turned into the mocap frame and averaged over
+    the sequence (the hand's accelerations cancel) gives up within ~2° (its own bias: the floor planes' mean normal
+    lies 1.8–2.3° from it at every seed); a floor plane is within 10° of that up and 1.3 m or more below the camera
+    (the desk lies 0.5–1.2 m below it). "Horizontal" is then the floor planes' own mean normal in the mocap frame.
+    Of the floor planes ≥ 2000 px ≥ 90 % come out ground and ≥ 98 % of the ground planes are horizontal within 5°.
+    Before the floor is first seen the farthest level plane (the desk) is taken for it; after, the desk is raised:
+    ≥ 75 % of the ground planes are floor at any seed (97–99 % at these; without the tracking, half)."""
     from scipy.spatial.transform import Rotation
 
     from kosmap.frontend.gravity import GravityTracker, reclassify
@@ -118,21 +120,20 @@ def test_tum_floor_is_ground_with_gravity_from_the_frames(data_dir, seed):
     def rot(t):
         return Rotation.from_quat(gt[np.argmin(np.abs(gt[:, 0] - t)), 4:8]).as_matrix()
 
-    world_up = np.mean([rot(a[0]) @ (a[1:] * np.array([-1.0, -1.0, 1.0])) for a in acc[::5]], axis=0)
-    world_up /= np.linalg.norm(world_up)
-    cfg, tracker = FspfConfig(drop_classes=[]), GravityTracker()
-    floor = floor_ground = ground = ground_level = ground_floor = 0
+    acc_up = np.mean([rot(a[0]) @ (a[1:] * np.array([-1.0, -1.0, 1.0])) for a in acc[::5]], axis=0)
+    acc_up /= np.linalg.norm(acc_up)
+    cfg, tracker, rows = FspfConfig(drop_classes=[]), GravityTracker(), []
     for s in iter_dataset(folder, 200, 2):
-        up_true = rot(s.stamp).T @ world_up
         p = fspf_plus(s.depth, s.camera, cfg, seed=seed)
         p = reclassify(p, tracker.update(p, s.stamp), tracker.height, cfg)
-        c = p.normals @ up_true
-        tilt = np.degrees(np.arccos(np.minimum(1.0, np.abs(c))))
-        big, gr = p.counts >= 2000, p.classes == PLANE_CLASSES.index("ground")
-        fl = big & (tilt < 10.0) & (c > 0) & (p.offsets * np.sign(c) > 1.3)
-        floor, floor_ground = floor + fl.sum(), floor_ground + (fl & gr).sum()
-        ground, ground_level = ground + (big & gr).sum(), ground_level + (big & gr & (tilt < 5.0)).sum()
-        ground_floor += (big & gr & fl).sum()
-    assert floor >= 100 and floor_ground / floor >= 0.85, (floor_ground, floor)
-    assert ground_level / ground >= 0.98, (ground_level, ground)
-    assert ground_floor / ground >= 0.9, (ground_floor, ground)
+        big = p.counts >= 2000
+        rows += [(*(rot(s.stamp) @ n), d, c == PLANE_CLASSES.index("ground"))
+                 for n, d, c in zip(p.normals[big], p.offsets[big], p.classes[big])]
+    world, below, ground = np.array(rows)[:, :3], np.array(rows)[:, 3], np.array(rows)[:, 4] > 0
+    floor = (world @ acc_up > np.cos(np.radians(10.0))) & (below > 1.3)
+    up = world[floor].sum(axis=0) / np.linalg.norm(world[floor].sum(axis=0))
+    assert np.degrees(np.arccos(up @ acc_up)) < 3.0  # the accelerometer's bias, as measured
+    level = world @ up > np.cos(np.radians(5.0))
+    assert floor.sum() >= 100 and (floor & ground).sum() / floor.sum() >= 0.90, ((floor & ground).sum(), floor.sum())
+    assert (ground & level).sum() / ground.sum() >= 0.98, ((ground & level).sum(), ground.sum())
+    assert (ground & floor).sum() / ground.sum() >= 0.75, ((ground & floor).sum(), ground.sum())
