@@ -85,17 +85,19 @@ FRAME_PERIOD = 1.0 / 30.0  # s between frames when they carry no time stamps (a 
 class FloorTracker:
     """The camera's height above the floor over a handheld sequence, through the frames that do not see the floor.
 
-    Motion model: between frames the hand moves the camera by at most HAND_SPEED × their interval (`move`); a
-    surface seen twice agrees within its gate k_sigma·√2·σ(z) (σ: the depth noise at its points' mean depth).
-    Each frame's level, up-facing planes (distance d below the camera, points):
-    - a plane within reach of the tracked floor (move + its gate) is the floor: the nearest such sets the height;
-    - a plane farther down than that is a lower floor only when the next frame sees it again (a single far plane
-      may be a misfit: Kinect v1 offsets at 3 m stray by decimetres): the farthest seen in both frames;
-    - when every plane lies higher (a desk filling the view), the camera height is the one that puts the frame's
-      planes best on the floor and the level surfaces measured before (`levels`, heights above the floor measured
-      in frames that saw both, so no error accumulates), within reach of the last: least truncated squares (a
-      plane's points × (its height's distance to the nearest level / its gate)², at most its points), then the
-      nearest. With no level known yet the farthest plane is taken for the floor.
+    Motion model: between frames the hand moves the camera by at most HAND_SPEED × their interval; a surface seen
+    twice agrees within its gate k_sigma·√2·σ(z) (σ: the depth noise at its points' mean depth); `reach` is the
+    two together. Each frame's level, up-facing planes (distance d below the camera, points):
+    - a plane farther down than the tracked floor's reach is a lower floor only when the next frame sees it again
+      (a single far plane may be a misfit: Kinect v1 offsets at 3 m stray by decimetres): the farthest seen in
+      both frames (until then, with no plane near the floor, the height stays);
+    - else the camera height is the one, within reach of the last, that puts the frame's planes best on the floor
+      (0) and on the level surfaces measured before (`levels`: heights above the floor measured against the floor
+      in the same frame, so no error accumulates, each with its σ, used once two floor frames measured it): least
+      truncated squares (each plane's points × (its distance to the nearest level / its gate)², at most its
+      points), then the nearest to the last. A plane it puts on the floor becomes the floor (the height, and the
+      frame's other planes measure the levels); with no plane near the floor and no level known yet, the farthest
+      plane is taken for it.
     So a frame that sees only the desk still puts the floor a desk's height further down (docs/planes.md). Frames
     without a time stamp (NaN) have no motion model: each one's farthest level plane is its floor."""
 
