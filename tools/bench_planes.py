@@ -228,9 +228,9 @@ def _markdown(out: dict) -> str:
               "FSPF+ as the thesis has it (one plane per window, no merging, no strip/bend/noise-tail tests); the "
               "plain row is kosmap's default with those extensions (better wall recovery and cleaner planes: "
               "tests/frontend/test_fspf_sim.py).", "",
-              "On this shared 2-core machine the medians moved by up to ±30 % between runs (FSPF+ default at ε = 20 mm: "
-              "4.5–5.9 ms in the last four runs, 4.55 and 5.33 ms with the final code); a row far off its neighbours at "
-              "another ε is a run disturbed by other jobs."]
+              "On this shared 2-core machine the medians move by up to ±30 % between runs with the load; the ratios "
+              "to the baseline, measured on the same frames in the same run, move less (TUM fr1_xyz 1.22–1.46× over three "
+              "runs at load 4.6–8.7); a row far off its neighbours at another ε is a run disturbed by other jobs."]
     real = out.get("real") or {}
     if real.get("labelled") or real.get("timing"):
         from kosmap.tools.planes_real import markdown
