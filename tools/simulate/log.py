@@ -121,7 +121,7 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
     cameras = cfg.cameras()
     # the IMU on the front camera: the base's rates and specific force turned into its optical frame (the lever arm's
     # centripetal term, ω²·r ≈ 0.01 m/s² for a camera 0.1 m off the turning axis, is left out)
-    imu_rot = cameras[0][1].matrix()[:3, :3].T if cfg.imu_on_camera else np.eye(3)
+    imu_rot = cameras[0][1].matrix()[:3, :3].T if cfg.imu_on_camera else None
     imu_frame = cameras[0][1].child if cfg.imu_on_camera else cfg.imu_frame
     models = [cfg.camera_model(m.child) for _, m in cameras]
     depth_noise = cfg.depth_noise()
@@ -161,8 +161,9 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
             stamp = ns(t)
             if kind == _IMU:
                 k = imu_rows[i]
-                put(Imu(stamp, imu_rot @ imu.gyro[k], imu_rot @ imu.accel[k], o_id, o_cov, g_cov, a_cov, imu_frame),
-                    cfg.imu_topic)
+                gyro, accel = (imu.gyro[k], imu.accel[k]) if imu_rot is None else (imu_rot @ imu.gyro[k],
+                                                                                    imu_rot @ imu.accel[k])
+                put(Imu(stamp, gyro, accel, o_id, o_cov, g_cov, a_cov, imu_frame), cfg.imu_topic)
             elif kind == _GT:
                 x, y, yaw = gt_poses[i]
                 put(Odometry(stamp, float(x), float(y), float(yaw), "map", "base_link"), cfg.gt_topic)
