@@ -361,10 +361,38 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
                                      cfg.refine_search, f.resolution, math.radians(cfg.refine_search_deg),
                                      math.radians(1.0), 0.0, 0.0)
     levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
-    for fld, sigma in levels[0 if coarse else 1:]:
+    first = 0 if coarse else 1
+    if coarse:  # a (re)started track: from the pose whose rays pass through the fewest walls, fine levels only
+        pose, first = _near_face(f, cfg, p64, pose), 1
+    for fld, sigma in levels[first:]:
         pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
                                   w, 10, True, sigma)
+    # the matcher's field peaks at both faces of a wall (a blueprint's wall is a band of cells): a pose a wall's
+    # thickness off fits it about as well, its rays ending on the far face, and the prior towards the prediction
+    # holds it there. When more than lost_through of the rays pass a map cell through a wall, the match starts
+    # again from the nearby pose whose rays pass through the fewest walls
+    if mcl.through_fraction(f, pose, p64, f.resolution) > cfg.lost_through:
+        pose = _near_face(f, cfg, p64, pose)
+        for fld, sigma in levels[1:]:
+            pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
+                                      w, 10, True, sigma)
     return pose
+
+
+def _near_face(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """The pose within ±refine_search (map cells apart, ±2°) whose rays pass through the fewest walls (the likelihood
+    field with each ray traced, a cell's tolerance): the matcher's field peaks at both faces of a wall, and a pose a
+    wall's thickness off fits it as well, its rays ending on the far face."""
+    k = int(round(cfg.refine_search / f.resolution))
+    d = np.arange(-k, k + 1) * f.resolution
+    a = np.radians(np.arange(-2.0, 2.5, 1.0))
+    gx, gy, ga = np.meshgrid(d, d, a, indexing="ij")
+    grid = pose + np.column_stack((gx.ravel(), gy.ravel(), ga.ravel()))
+    z_max = math.exp(-f.floor) * cfg.z_rand
+    ll = mcl.log_likelihoods(f, grid, mcl.beam_subset(pts, 4 * cfg.max_beams), math.log(cfg.z_through / z_max),
+                             f.resolution)
+    best = np.flatnonzero(ll >= ll.max() - 1e-9)
+    return grid[best[np.argmin(np.hypot(grid[best, 0] - pose[0], grid[best, 1] - pose[1]))]]
 
 
 def f_score(f: MapField, pts: np.ndarray, pose: np.ndarray) -> float:
