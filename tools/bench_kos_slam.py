@@ -14,8 +14,12 @@ fixed; with the IMU but the gyro bias left in the noise. Truths (odometry distan
 MCAP metadata (tools.simulate.log.simulation_truth). `--laser` also runs laser SLAM on logs that have a laser.
 `--harsh` adds (simulated once into --cache) the office and the long-corridor world (tools/simulate/worlds/corridors.yaml)
 with harsh but ordinary wheel odometry: 2 % and 2.8 % wheel radius errors and a 0.3°/m heading bias (HARSH), for
-each of --seeds. `--configs ... "imu, front end free along-track"` also replays the front-end alternative (not a
-default: it fixes the corridors' odometry scale and biases the office's, see docs/bench/kos_slam.md).
+each of --seeds. `--configs ... "imu, along-track free where the scan fixes it"` also replays the front end held to
+the wheels along-track only where the scan's own surfaces leave that direction open (not the default: it measures the
+corridors' odometry scale, but the office's free matches come out short and its scale too large, see
+docs/benchmarks.md), "imu, along-track free, prior 100" the same with a weaker pull towards the odometry. `--kos-nearest
+surface point` records the KOS scans a second time with each bin's nearest point (the thesis's rule) instead of the
+mean of its nearest surface's points (frontend/kos.py) and replays them too.
 Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
 """
 
@@ -42,10 +46,12 @@ CONFIGS = {
     "no imu": {"imu": False},
     "imu, scale fixed": {"odom_scale": "fixed"},
     "imu, bias fixed": {"gyro_bias": "fixed"},
-    # not the default, measured beside it: the KOS front end held along-track only where the scan's own surfaces
-    # leave that direction open (the laser's scan-geometry rule, frontend/odometry.py degeneracy_prior) instead
-    # of always (KOS_FRONTEND's prior_weight_along); the key "odometry" holds [odometry] overrides
-    "imu, front end free along-track": {"odometry": {"prior_weight_along": 100.0, "degenerate_ratio": 0.1}},
+    # not the default, measured beside it: the KOS front end held along-track to the odometry only where the scan's
+    # own surfaces leave that direction open (the laser's scan-geometry rule, frontend/odometry.py degeneracy_prior)
+    # instead of always (backend/kosprofile.py KOS_FRONTEND), with the pull towards the odometry where the scan does
+    # fix it at 300 or 100 (KOS_FRONTEND: 1000); the key "odometry" holds [odometry] overrides
+    "imu, along-track free where the scan fixes it": {"odometry": {"prior_weight_along": 300.0, "degenerate_ratio": 0.1}},
+    "imu, along-track free, prior 100": {"odometry": {"prior_weight_along": 100.0, "degenerate_ratio": 0.1}},
 }
 
 
@@ -68,14 +74,16 @@ def harsh_logs(cache: Path, seed: int = 0) -> list[Path]:
     return out
 
 
-def _key(log: Path, rate: float) -> str:
+def _key(log: Path, rate: float, nearest: str = "surface") -> str:
     st = log.stat()
-    return hashlib.sha1(f"{log.resolve()}|{st.st_size}|{st.st_mtime_ns}|{rate}".encode()).hexdigest()[:16]
+    kos = "" if nearest == "surface" else f"|{nearest}"  # (the default's key as before the option)
+    return hashlib.sha1(f"{log.resolve()}|{st.st_size}|{st.st_mtime_ns}|{rate}{kos}".encode()).hexdigest()[:16]
 
 
-def record(log: Path, rate: float, cache: Path) -> dict:
-    """The SlamFeed calls of a KOS run of `log` at `rate` Hz (cached), its ground truth and the default run's ATE."""
-    path = cache / f"{log.stem}-{_key(log, rate)}.pkl"
+def record(log: Path, rate: float, cache: Path, nearest: str = "surface") -> dict:
+    """The SlamFeed calls of a KOS run of `log` at `rate` Hz (cached), its ground truth and the default run's ATE;
+    `nearest`: [kos] nearest, what a KOS bin keeps (frontend/kos.py)."""
+    path = cache / f"{log.stem}-{_key(log, rate, nearest)}.pkl"
     if path.exists():
         return pickle.loads(path.read_bytes())
     from kosmap.mapping import slam as S
@@ -107,6 +115,7 @@ def record(log: Path, rate: float, cache: Path) -> dict:
 
     cfg = Config()
     cfg.build.depth_rate = rate
+    cfg.kos.nearest = nearest
     t0 = time.perf_counter()
     S.SlamFeed = Recorder
     try:
@@ -242,7 +251,7 @@ def markdown(res: list[dict], lasers: list[dict], meta: dict) -> str:
                 "corridor only at corners and rooms. Held along-track to the wheels always (the default front end), the "
                 "front end's matches repeat the scale it was given and the graph's estimate stays near it (compare "
                 "`scale` with `true scale`). Held only where the scan's own surfaces leave that direction open "
-                "(`front end free along-track`), the corners and rooms measure the scale in the corridors, but in the "
+                "(`along-track free ...`), the corners and rooms measure the scale in the corridors, but in the "
                 "office, where such frames are many, the free matches come out short and the scale too large."]
     return "\n".join(out) + "\n"
 
@@ -254,6 +263,8 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="simulator seeds of the --harsh logs")
     ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
     ap.add_argument("--configs", nargs="+", default=[c for c in CONFIGS if "odometry" not in CONFIGS[c]], choices=list(CONFIGS))
+    ap.add_argument("--kos-nearest", nargs="+", default=["surface"], choices=["surface", "point"],
+                    help="what a KOS bin keeps ([kos] nearest); 'surface point' replays the thesis's nearest point too")
     ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
@@ -266,16 +277,19 @@ def main() -> None:
     top = max(a.rates)
     for log in a.logs:
         truth = _truth(log)
-        doc = record(log, top, a.cache)
-        print(f"{log.name}: KOS scans recorded ({doc['kos_seconds']:.0f} s; full run ATE {doc['ate_full_run']:.3f} m)", flush=True)
-        for rate in a.rates:
-            for name in a.configs:
-                r = replay(doc, rate, **CONFIGS[name])
-                r.update(log=log.name, rate=rate, config=name, truth=truth)
-                res.append(r)
-                print(f"  {rate:g} Hz {name:>31}: ATE {r['ate']:.3f} m, scale {_f(r['odometry_scale'], '{:.4f}')} "
-                      f"(truth {_f(truth['odometry_scale'], '{:.4f}')}), bias {_f(r['gyro_bias_deg_s'], '{:+.4f}')} °/s, "
-                      f"{r['slam_seconds']:.1f} s", flush=True)
+        for nearest in a.kos_nearest:
+            doc = record(log, top, a.cache, nearest)
+            print(f"{log.name}: KOS scans ({nearest}) recorded ({doc['kos_seconds']:.0f} s; full run ATE "
+                  f"{doc['ate_full_run']:.3f} m)", flush=True)
+            for rate in a.rates:
+                for name in a.configs:
+                    label = name if nearest == "surface" else f"{name}, KOS nearest point"
+                    r = replay(doc, rate, **CONFIGS[name])
+                    r.update(log=log.name, rate=rate, config=label, truth=truth)
+                    res.append(r)
+                    print(f"  {rate:g} Hz {label:>31}: ATE {r['ate']:.3f} m, scale {_f(r['odometry_scale'], '{:.4f}')} "
+                          f"(truth {_f(truth['odometry_scale'], '{:.4f}')}), bias {_f(r['gyro_bias_deg_s'], '{:+.4f}')} "
+                          f"°/s, {r['slam_seconds']:.1f} s", flush=True)
         if a.laser:
             from kosmap.frontend.logs import detect_topics, open_log
             from kosmap.mapping.config import Config
