@@ -90,7 +90,7 @@ class FloorTracker:
     two together. Each frame's level, up-facing planes (distance d below the camera, points):
     - a plane farther down than the tracked floor's reach is a lower floor only when the next frame sees it again
       (a single far plane may be a misfit: Kinect v1 offsets at 3 m stray by decimetres): the farthest seen in
-      both frames (until then, with no plane near the floor, the height stays);
+      both frames (until then it is one more plane the others place);
     - else the camera height is the one, within reach of the last, that puts the frame's planes best on the floor
       (0) and on the level surfaces measured before (`levels`: heights above the floor measured against the floor
       in the same frame, so no error accumulates, each with its σ, used once two floor frames measured it): least
@@ -128,11 +128,9 @@ class FloorTracker:
         again = below & (np.abs(d[:, None] - lower[None, :]) <= reach[:, None]).any(axis=1)
         if again.any():  # a lower surface seen in two frames running: the farthest such is the floor
             return self.floor_at(int(np.argmax(np.where(again, d, -np.inf))), d, w, sigma)
-        near = np.abs(d - self.height) <= reach
-        if not near.any() and below.any():  # a lower floor not yet confirmed, the rest raised: the height as it was
-            return self.height
-        if not near.any() and not len(self.levels):
-            return self.floor_at(int(np.argmax(d)), d, w, sigma)
+        if not (np.abs(d - self.height) <= reach).any() and not len(self.levels):  # nothing places the camera:
+            # the height as it was beside a lower floor not yet confirmed, else the farthest plane is the floor
+            return self.height if below.any() else self.floor_at(int(np.argmax(d)), d, w, sigma)
         self.height = self.relocate(d, w, sigma, reach)
         floor = np.abs(d - self.height) < self.k_sigma * np.sqrt(2.0) * sigma  # the planes it puts on the floor
         if floor.any():

@@ -76,3 +76,33 @@ def test_dominant_up_ignores_walls_and_flips_ceilings():
     normals = np.array([up, -up, wall / np.linalg.norm(wall), [1.0, 0.0, 0.0]])
     est, pts = dominant_up(normals, np.array([5000, 3000, 50000, 40000]), np.array([0.0, -1.0, 0.0]))
     assert pts == 8000 and np.allclose(est, up / np.linalg.norm(up))
+
+
+def test_floor_tracker_keeps_the_floor_under_a_desk_filling_the_view():
+    """FloorTracker on planes as a 15 Hz handheld sequence gives them (distance below the camera, mean depth,
+    points): floor 1.6 m and desk 0.75 m above it seen together, then the desk alone while the camera rises
+    and sinks 10 cm, a far misfit plane for one frame, then a real step down of the floor confirmed on the second
+    frame that sees it. The desk stays 0.75 m up (raised), the misfit changes nothing."""
+    from kosmap.frontend.gravity import FloorTracker
+
+    tr, t, out = FloorTracker(), 0.0, []
+
+    def frame(cam_h, planes):  # planes: heights above the floor, points; the camera cam_h above the floor
+        nonlocal t
+        t += 1 / 15
+        d = np.array([cam_h - h for h, _ in planes])
+        out.append(tr.update(d, d + 0.6, np.array([n for _, n in planes], float), t))
+
+    for k in range(6):
+        frame(1.6 + 0.005 * k, [(0.0, 20000), (0.75, 60000)])
+    assert tr.height == pytest.approx(1.625, abs=0.01) and np.any(np.abs(tr.levels - 0.75) < 0.01)
+    for k in range(20):  # desk alone, the camera rising then sinking by 10 cm (0.15 m/s)
+        frame(1.625 + 0.01 * (k if k < 10 else 20 - k), [(0.75, 80000)])
+        assert out[-1] == pytest.approx(1.625 + 0.01 * (k if k < 10 else 20 - k), abs=0.01)
+    frame(1.625, [(0.75, 80000), (-0.16, 1000)])  # one far misfit, 16 cm below the floor
+    assert out[-1] == pytest.approx(1.625, abs=0.01)
+    frame(1.625, [(0.75, 80000), (0.0, 20000)])
+    frame(1.625, [(0.75, 80000), (0.0, 20000), (-0.3, 5000)])  # the floor steps 0.3 m down ahead …
+    assert out[-1] == pytest.approx(1.625, abs=0.01)
+    frame(1.625, [(0.75, 80000), (-0.3, 5000)])  # … seen again: the lower floor
+    assert out[-1] == pytest.approx(1.925, abs=0.01)
