@@ -18,8 +18,8 @@ each of --seeds. `--configs ... "imu, along-track free where the scan fixes it"`
 the wheels along-track only where the scan's own surfaces leave that direction open (not the default: it measures the
 corridors' odometry scale, but the office's free matches come out short and its scale too large, see
 docs/benchmarks.md), "imu, along-track free, prior 100" the same with a weaker pull towards the odometry. `--kos-nearest
-surface point` records the KOS scans a second time with each bin's nearest point (the thesis's rule) instead of the
-mean of its nearest surface's points (frontend/kos.py) and replays them too.
+point surface` records the KOS scans a second time with the mean of each bin's nearest surface's points instead of its
+nearest point (the thesis's rule and the default; frontend/kos.py) and replays them too.
 Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
 """
 
@@ -74,13 +74,13 @@ def harsh_logs(cache: Path, seed: int = 0) -> list[Path]:
     return out
 
 
-def _key(log: Path, rate: float, nearest: str = "surface") -> str:
+def _key(log: Path, rate: float, nearest: str = "point") -> str:
     st = log.stat()
-    kos = "" if nearest == "surface" else f"|{nearest}"  # (the default's key as before the option)
+    kos = "" if nearest == "surface" else f"|{nearest}"
     return hashlib.sha1(f"{log.resolve()}|{st.st_size}|{st.st_mtime_ns}|{rate}{kos}".encode()).hexdigest()[:16]
 
 
-def record(log: Path, rate: float, cache: Path, nearest: str = "surface") -> dict:
+def record(log: Path, rate: float, cache: Path, nearest: str = "point") -> dict:
     """The SlamFeed calls of a KOS run of `log` at `rate` Hz (cached), its ground truth and the default run's ATE;
     `nearest`: [kos] nearest, what a KOS bin keeps (frontend/kos.py)."""
     path = cache / f"{log.stem}-{_key(log, rate, nearest)}.pkl"
@@ -263,8 +263,8 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="simulator seeds of the --harsh logs")
     ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
     ap.add_argument("--configs", nargs="+", default=[c for c in CONFIGS if "odometry" not in CONFIGS[c]], choices=list(CONFIGS))
-    ap.add_argument("--kos-nearest", nargs="+", default=["surface"], choices=["surface", "point"],
-                    help="what a KOS bin keeps ([kos] nearest); 'surface point' replays the thesis's nearest point too")
+    ap.add_argument("--kos-nearest", nargs="+", default=["point"], choices=["point", "surface"],
+                    help="what a KOS bin keeps ([kos] nearest); 'point surface' replays the nearest surface's mean too")
     ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
@@ -283,7 +283,7 @@ def main() -> None:
                   f"{doc['ate_full_run']:.3f} m)", flush=True)
             for rate in a.rates:
                 for name in a.configs:
-                    label = name if nearest == "surface" else f"{name}, KOS nearest point"
+                    label = name if nearest == "point" else f"{name}, KOS surface means"
                     r = replay(doc, rate, **CONFIGS[name])
                     r.update(log=log.name, rate=rate, config=label, truth=truth)
                     res.append(r)
