@@ -593,8 +593,10 @@ class KosAccumulator:
     with this rule). Each image then takes two passes: the nearest range per bin, then the mean of the ranges within
     `window` of it (the nearest surface's points; a nearer obstacle still wins, a farther one within the window is
     averaged in). Cameras added in turn keep, per bin, the nearest of their means (as kosframe.merge_cameras).
-    Not the default ([kos] nearest = point): with the unbiased scans the held KOS SLAM front end's scale estimate on
-    the simulated office moves by about −0.25 % (docs/benchmarks.md, KOS SLAM with harsh wheel odometry).
+    Not the default ([kos] nearest = point): with the unbiased scans the default KOS SLAM (front end held to the
+    wheels along-track) estimates the odometry scale about 0.25 % lower and its harsh-odometry office ATE rises from
+    0.06-0.08 to 0.09-0.10 m; the front end free along-track needs them (docs/benchmarks.md, KOS SLAM with harsh
+    wheel odometry).
     """
 
     def __init__(self, cfg: KosConfig, bearings: Bearings, min_range: float, max_range: float,
