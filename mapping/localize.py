@@ -339,10 +339,11 @@ def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True,
             uniform: float | None = None) -> np.ndarray:
-    """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: harder along the direction
-    of travel (the narrow scan's blind direction in a corridor) than across it. `coarse`: from the filter's pose,
-    coarse to fine (4σ, 2σ, σ); from the track's own prediction, which the odometry of one step hardly moves, fine
-    only (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""
+    """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: refine_prior_along along the
+    direction of travel (ten times refine_prior_xy by default), refine_prior_xy across it. `coarse`: from the
+    filter's pose, a correlative search first, then the pose whose rays pass through the fewest walls; from the
+    track's own prediction, which the odometry of one step hardly moves, directly; both at the fine levels only
+    (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""
     yaw = pred[2] + (math.atan2(step[1], step[0]) if step is not None else 0.0)
     c, s = math.cos(yaw), math.sin(yaw)
     along = cfg.refine_prior_along if step is not None else cfg.refine_prior_xy
