@@ -44,9 +44,9 @@ class KosConfig(StageConfig):
     obstacle_max: float = param(1.9, doc="obstacle scan: highest point height", unit="m")
     angle_increment_deg: float = param(0.0, lo=0.0, doc="bearing bin width; 0 = one bin per image column", unit="deg")
     source: str = param("planes", choices=("planes", "depth"), doc="plane points (thesis) or all valid depth points")
-    nearest: str = param("point", choices=("point", "surface"), doc="what a bin keeps: the nearest point (thesis Alg. 7; "
-                         "the depth noise puts it 2-3 σ short) or the mean range of its nearest surface's points (those "
-                         "within one plane band of the nearest point, 2·tail_eps·ε of [fspf])")
+    nearest: str = param("point", choices=("point", "surface"), doc="what a bin keeps: the nearest point (thesis "
+                         "Alg. 7; the depth noise puts it 2-3 σ short) or the mean range of its nearest surface's "
+                         "points (those within one plane band of the nearest point, 2·tail_eps·ε of [fspf])")
 
     def __post_init__(self) -> None:
         super().__post_init__()
@@ -284,8 +284,8 @@ def _accumulate(pts, R, t, lo, hi, g, out):  # pragma: no cover - compiled
 
 @njit(cache=True)
 def _surface_points(pts, R, t, lo, hi, g, lim, s, c):  # pragma: no cover - compiled
-    """The second pass of `_accumulate` (the surface rule: KosAccumulator): per level and bin, the sum `s` and count `c` of
-    the ranges no farther than `lim` (levels × bins), the nearest range plus the surface window."""
+    """The second pass of `_accumulate` (the surface rule: KosAccumulator): per level and bin, the sum `s` and count
+    `c` of the ranges no farther than `lim` (levels × bins), the nearest range plus the surface window."""
     zmin = lo.min()
     zmax = hi.max()
     for i in range(pts.shape[0]):
@@ -479,8 +479,8 @@ def _accumulate_image(depth, mask, g, lo, hi, out2):  # pragma: no cover - compi
 
 @njit(cache=True, error_model="numpy")
 def _surface_image(depth, mask, g, lo, hi, lim2, s, c):  # pragma: no cover - compiled
-    """The second pass of `_accumulate_image` (the surface rule: KosAccumulator): per bin and band, the sum `s` and count `c`
-    of the ranges whose square is no more than `lim2` (bins × bands), the nearest range plus the surface window."""
+    """The second pass of `_accumulate_image` (the surface rule: KosAccumulator): per bin and band, the sum `s` and
+    count `c` of the ranges whose square is no more than `lim2` (bins × bands), the nearest range plus the window."""
     blk = _block_buffers(depth.shape[1], lo.shape[0])
     ks, r2s, zs = blk[0], blk[1], blk[2]
     zmin = lo.min()

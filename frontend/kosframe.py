@@ -46,9 +46,9 @@ def plane_cloud(planes: Planes, n: int, seed: int) -> tuple[np.ndarray, np.ndarr
 
 
 def surface_window(kos_cfg: KosConfig, fspf_cfg: FspfConfig) -> float:
-    """The KOS surface rule's window (frontend/kos.py KosAccumulator): the points of one plane lie within its noise
-    tail, ±tail_eps·ε of it (FSPF+; FSPF's error ε), so a bin's nearest surface spans 2·tail_eps·ε from its nearest
-    point. 0 (the nearest point) when [kos] nearest = "point"."""
+    """The KOS surface rule's window (frontend/kos.py KosAccumulator): the points of one plane lie within its
+    noise tail, ±tail_eps·ε of it (FSPF+; FSPF's error ε), so a bin's nearest surface spans 2·tail_eps·ε from its
+    nearest point. 0 (the nearest point) when [kos] nearest = "point"."""
     if kos_cfg.nearest == "point":
         return 0.0
     eps = fspf_cfg.epsilon_m if fspf_cfg.method == "fspf+" else fspf_cfg.fspf_error_m

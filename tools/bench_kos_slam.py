@@ -50,7 +50,8 @@ CONFIGS = {
     # own surfaces leave that direction open (the laser's scan-geometry rule, frontend/odometry.py degeneracy_prior)
     # instead of always (backend/kosprofile.py KOS_FRONTEND), with the pull towards the odometry where the scan does
     # fix it at 300 or 100 (KOS_FRONTEND: 1000); the key "odometry" holds [odometry] overrides
-    "imu, along-track free where the scan fixes it": {"odometry": {"prior_weight_along": 300.0, "degenerate_ratio": 0.1}},
+    "imu, along-track free where the scan fixes it": {"odometry": {"prior_weight_along": 300.0,
+                                                                   "degenerate_ratio": 0.1}},
     "imu, along-track free, prior 100": {"odometry": {"prior_weight_along": 100.0, "degenerate_ratio": 0.1}},
 }
 
