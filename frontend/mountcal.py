@@ -38,8 +38,8 @@ class MountEstimate:
     @property
     def differs(self) -> bool:
         """More than 1° or 2 cm from the given mount."""
-        return (max(abs(self.pitch_deg - self.given_pitch_deg), abs(self.roll_deg - self.given_roll_deg)) > 1.0
-                or abs(self.height_m - self.given_height_m) > 0.02)
+        return bool(max(abs(self.pitch_deg - self.given_pitch_deg), abs(self.roll_deg - self.given_roll_deg)) > 1.0
+                    or abs(self.height_m - self.given_height_m) > 0.02)
 
     def as_dict(self) -> dict:
         return asdict(self) | {"differs": self.differs}
@@ -109,19 +109,19 @@ class LaserAlignment:
 
     @property
     def yaw_determined(self) -> bool:
-        return self.sd_yaw_deg < 0.1
+        return bool(self.sd_yaw_deg < 0.1)
 
     @property
     def offset_determined(self) -> bool:
         """Walls seen both ways (≥ 10 % of the matches across the main direction) and standard errors under 2.5 mm
         (a quarter of the 1 cm asked): a corridor seen along its length fixes the yaw but not the offset along it."""
-        return self.normal_spread >= 0.1 and max(self.sd_x_m, self.sd_y_m) < 0.0025
+        return bool(self.normal_spread >= 0.1 and max(self.sd_x_m, self.sd_y_m) < 0.0025)
 
     @property
     def differs(self) -> bool:
         """More than 1° (yaw) or 2 cm (x, y) from the given mount, where determined."""
-        return ((self.yaw_determined and abs(self.dyaw_deg) > 1.0)
-                or (self.offset_determined and np.hypot(self.x_m - self.given_x_m, self.y_m - self.given_y_m) > 0.02))
+        return bool((self.yaw_determined and abs(self.dyaw_deg) > 1.0)
+                    or (self.offset_determined and np.hypot(self.x_m - self.given_x_m, self.y_m - self.given_y_m) > 0.02))
 
     def as_dict(self) -> dict:
         return asdict(self) | {"yaw_determined": self.yaw_determined, "offset_determined": self.offset_determined,

@@ -22,6 +22,7 @@ from kosmap.frontend.kosframe import KosFrame
 from kosmap.frontend.logs import detect_topics, open_log
 from kosmap.frontend.records import Transform
 from kosmap.mapping.config import Config, write_config
+from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosstream import KosStep, ScanRun, kos_steps
 from kosmap.mapping.lasercal import KosLaserCal, write_mount_toml
 from kosmap.mapping.mapio import save_figure
@@ -149,5 +150,5 @@ def _scan_into(log_path: Path, out: Path, cfg: Config, figures: int, limit: int 
         "laser_alignment": run.laser_alignment,
         "warnings": run.warnings,
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    (out / "summary.json").write_text(json.dumps(json_safe(summary), indent=2))
     return summary

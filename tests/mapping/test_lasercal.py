@@ -47,6 +47,7 @@ def test_yaw_and_offset_recovered_in_a_room(tmp_path, world, seed, yaw, xy):
     assert abs(res["yaw_deg"] - yaw) <= 0.3, res
     # KOS keeps the nearest return per bin: a few mm short of the wall, read as ≤ 1 cm forward
     assert np.hypot(res["x_m"] - xy[0], res["y_m"] - xy[1]) <= 0.012, res
+    assert json.loads(json.dumps(res)) == res  # plain types: scan's summary.json and build's metrics.json take it
 
 
 def test_a_corridor_fixes_the_yaw_not_the_offset_and_scan_reports_it(tmp_path, capsys):
