@@ -16,9 +16,12 @@ from kosmap.frontend.odometry import OdometryConfig
 # wheel odometry (prior_weight across, prior_weight_along along the direction of travel, prior_weight_yaw on the
 # heading), and there is no correlative search or recovery search (search_*, recovery_ratio): over ±1 m and ±90°
 # they lock a narrow scan onto the wrong wall (docs/dependencies.md, "The narrow depth camera in a corridor loop").
-# Being held along-track anyway, it needs no scan-geometry degeneracy rule (degenerate_ratio 0).
-KOS_FRONTEND = {"prior_weight": 100.0, "prior_weight_along": 1000.0, "prior_weight_yaw": 100.0,
-                "search_linear": 0.0, "search_angular_deg": 0.0, "recovery_ratio": 0.0, "degenerate_ratio": 0.0}
+# Along-track it is held hard only where the scan's own surfaces leave that direction open (degenerate_ratio, the
+# laser front end's rule): held there always, the matches repeat the wheels' scale error and a 2 % error stays in
+# the map along bare corridors; free where corners and rooms fix it, they measure the scale (docs/benchmarks.md,
+# "KOS SLAM with harsh wheel odometry"). Free matches need unbiased ranges: [kos] nearest = surface.
+KOS_FRONTEND = {"prior_weight": 100.0, "prior_weight_along": 300.0, "prior_weight_yaw": 100.0,
+                "search_linear": 0.0, "search_angular_deg": 0.0, "recovery_ratio": 0.0, "degenerate_ratio": 0.1}
 
 # The graph.
 # - odom_sigma_xy 5 mm + odom_sigma_xy_per_m 2 %: the wheels of an indoor robot on a flat floor (the [graph]

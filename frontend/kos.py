@@ -2,7 +2,7 @@
 
 Points (plane points from FSPF+, or all valid depth points) are moved into `base_link` with the camera's
 mount, kept when their height lies in a level's band, binned by bearing, and each bin keeps the nearest
-horizontal range (the thesis, the default) or the mean range of the nearest surface's points ([kos] nearest =
+horizontal range (the thesis; [kos] nearest = point) or, the default, the mean range of the nearest surface's points (nearest =
 surface: KosAccumulator). Several cameras accumulate into the same bins. Written by hand (no library bins a
 cloud into several height bands in one pass) and compiled with numba.
 
@@ -44,7 +44,7 @@ class KosConfig(StageConfig):
     obstacle_max: float = param(1.9, doc="obstacle scan: highest point height", unit="m")
     angle_increment_deg: float = param(0.0, lo=0.0, doc="bearing bin width; 0 = one bin per image column", unit="deg")
     source: str = param("planes", choices=("planes", "depth"), doc="plane points (thesis) or all valid depth points")
-    nearest: str = param("point", choices=("point", "surface"), doc="what a bin keeps: the nearest point (thesis "
+    nearest: str = param("surface", choices=("point", "surface"), doc="what a bin keeps: the nearest point (thesis "
                          "Alg. 7; the depth noise puts it 2-3 σ short) or the mean range of its nearest surface's "
                          "points (those within one plane band of the nearest point, 2·tail_eps·ε of [fspf])")
 

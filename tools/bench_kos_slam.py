@@ -14,12 +14,12 @@ fixed; with the IMU but the gyro bias left in the noise. Truths (odometry distan
 MCAP metadata (tools.simulate.log.simulation_truth). `--laser` also runs laser SLAM on logs that have a laser.
 `--harsh` adds (simulated once into --cache) the office and the long-corridor world (tools/simulate/worlds/corridors.yaml)
 with harsh but ordinary wheel odometry: 2 % and 2.8 % wheel radius errors and a 0.3°/m heading bias (HARSH), for
-each of --seeds. `--configs ... "imu, along-track free where the scan fixes it"` also replays the front end held to
-the wheels along-track only where the scan's own surfaces leave that direction open (not the default: it measures the
-corridors' odometry scale, but the office's free matches come out short and its scale too large, see
-docs/benchmarks.md), "imu, along-track free, prior 100" the same with a weaker pull towards the odometry. `--kos-nearest
-point surface` records the KOS scans a second time with the mean of each bin's nearest surface's points instead of its
-nearest point (the thesis's rule and the default; frontend/kos.py) and replays them too.
+each of --seeds. The default KOS front end is held to the wheels along-track only where the scan's own surfaces
+leave that direction open (backend/kosprofile.py); `--configs ... "imu, held along-track always"` also replays it held
+always (it repeats the wheels' scale along the corridors, see docs/benchmarks.md), "imu, along-track free, prior 100"
+free with a weaker pull towards the odometry. `--kos-nearest surface point` records the KOS scans a second time with
+each bin's nearest point (the thesis's rule) instead of the mean of its nearest surface's points (the default;
+frontend/kos.py) and replays them too.
 Writes docs/bench/kos_slam.md and docs/bench/kos_slam.json.
 """
 
@@ -46,12 +46,11 @@ CONFIGS = {
     "no imu": {"imu": False},
     "imu, scale fixed": {"odom_scale": "fixed"},
     "imu, bias fixed": {"gyro_bias": "fixed"},
-    # not the default, measured beside it: the KOS front end held along-track to the odometry only where the scan's
-    # own surfaces leave that direction open (the laser's scan-geometry rule, frontend/odometry.py degeneracy_prior)
-    # instead of always (backend/kosprofile.py KOS_FRONTEND), with the pull towards the odometry where the scan does
-    # fix it at 300 or 100 (KOS_FRONTEND: 1000); the key "odometry" holds [odometry] overrides
-    "imu, along-track free where the scan fixes it": {"odometry": {"prior_weight_along": 300.0,
-                                                                   "degenerate_ratio": 0.1}},
+    # not the default, measured beside it: the KOS front end held along-track to the odometry always (no scan-geometry
+    # rule, a pull of 1000) instead of only where the scan's own surfaces leave that direction open (backend/kosprofile.py
+    # KOS_FRONTEND: degeneracy_prior of frontend/odometry.py, a pull of 300), or free with a pull of 100; the key
+    # "odometry" holds [odometry] overrides
+    "imu, held along-track always": {"odometry": {"prior_weight_along": 1000.0, "degenerate_ratio": 0.0}},
     "imu, along-track free, prior 100": {"odometry": {"prior_weight_along": 100.0, "degenerate_ratio": 0.1}},
 }
 
@@ -75,13 +74,13 @@ def harsh_logs(cache: Path, seed: int = 0) -> list[Path]:
     return out
 
 
-def _key(log: Path, rate: float, nearest: str = "point") -> str:
+def _key(log: Path, rate: float, nearest: str = "surface") -> str:
     st = log.stat()
-    kos = "" if nearest == "surface" else f"|{nearest}"
+    kos = f"|{nearest}"
     return hashlib.sha1(f"{log.resolve()}|{st.st_size}|{st.st_mtime_ns}|{rate}{kos}".encode()).hexdigest()[:16]
 
 
-def record(log: Path, rate: float, cache: Path, nearest: str = "point") -> dict:
+def record(log: Path, rate: float, cache: Path, nearest: str = "surface") -> dict:
     """The SlamFeed calls of a KOS run of `log` at `rate` Hz (cached), its ground truth and the default run's ATE;
     `nearest`: [kos] nearest, what a KOS bin keeps (frontend/kos.py)."""
     path = cache / f"{log.stem}-{_key(log, rate, nearest)}.pkl"
@@ -249,11 +248,11 @@ def markdown(res: list[dict], lasers: list[dict], meta: dict) -> str:
     if any(r["log"].startswith("harsh-corridors") for r in res):
         out += ["", "The long-corridor world (harsh-corridors): its KOS error is the wheel odometry's scale, not a missing "
                 "loop. A ring closes whatever its scale, so loops cannot observe it; a narrow scan sees along a bare "
-                "corridor only at corners and rooms. Held along-track to the wheels always (the default front end), the "
+                "corridor only at corners and rooms. Held along-track to the wheels always (`held along-track always`), the "
                 "front end's matches repeat the scale it was given and the graph's estimate stays near it (compare "
                 "`scale` with `true scale`). Held only where the scan's own surfaces leave that direction open "
-                "(`along-track free ...`), the corners and rooms measure the scale in the corridors, but in the "
-                "office, where such frames are many, the free matches come out short and the scale too large."]
+                "(the default), the corners and rooms measure the scale in the corridors; in the plain office the "
+                "free matches come out a little short and the scale ~0.3 % too large."]
     return "\n".join(out) + "\n"
 
 
@@ -264,8 +263,8 @@ def main() -> None:
     ap.add_argument("--seeds", nargs="+", type=int, default=[0], help="simulator seeds of the --harsh logs")
     ap.add_argument("--rates", nargs="+", type=float, default=[10.0, 5.0])
     ap.add_argument("--configs", nargs="+", default=[c for c in CONFIGS if "odometry" not in CONFIGS[c]], choices=list(CONFIGS))
-    ap.add_argument("--kos-nearest", nargs="+", default=["point"], choices=["point", "surface"],
-                    help="what a KOS bin keeps ([kos] nearest); 'point surface' replays the nearest surface's mean too")
+    ap.add_argument("--kos-nearest", nargs="+", default=["surface"], choices=["point", "surface"],
+                    help="what a KOS bin keeps ([kos] nearest); 'surface point' replays the nearest point (thesis) too")
     ap.add_argument("--laser", action="store_true", help="also laser SLAM (with and without the IMU) on logs with a laser")
     ap.add_argument("--cache", type=Path, default=Path(os.environ.get("TMPDIR", "/tmp")) / "kosmap-bench-kos-slam")
     ap.add_argument("--out", type=Path, default=REPO / "docs")
@@ -284,7 +283,7 @@ def main() -> None:
                   f"{doc['ate_full_run']:.3f} m)", flush=True)
             for rate in a.rates:
                 for name in a.configs:
-                    label = name if nearest == "point" else f"{name}, KOS surface means"
+                    label = name if nearest == "surface" else f"{name}, KOS nearest point"
                     r = replay(doc, rate, **CONFIGS[name])
                     r.update(log=log.name, rate=rate, config=label, truth=truth)
                     res.append(r)
