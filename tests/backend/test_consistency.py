@@ -1,7 +1,7 @@
 """The self-consistency check (backend/consistency.py) on a narrow-scan KOS run: the simulated office (361 s, the
 corridor ring with two loops; one Kinect, 70.6° and ≤ 4.5 m, at 5 Hz and half resolution to keep CI short) mapped by
 KOS SLAM is a good map and is not called bent; the same recorded scans mapped on odometry and scan matching alone
-(loop closure, the gyro and the wall headings off) are bent, and are called so. The ground truth (ATE) agrees. Also
+(loop closure, the gyro and the wall headings off, the front end held to the wheels) are bent, and are called so. The ground truth (ATE) agrees. Also
 the rule's parts on their own: the scan's measured noise and the loop's own covariance."""
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from kosmap.backend.consistency import LoopCheck, consistency, scan_noise
 from kosmap.frontend import se2
 
 
-def _replay(doc: dict, **graph):
+def _replay(doc: dict, odometry: dict | None = None, **graph):
     """KOS SLAM on the recorded SlamFeed calls of a run with [graph] overrides: the benchmark's own replay
     (tools/bench_kos_slam.replay_slam, at the rate the run was recorded), and its ATE against the recorded truth."""
     from kosmap.mapping.slam import evaluate
     from kosmap.tools.bench_kos_slam import replay_slam
 
-    r, _ = replay_slam(doc, RATE, **graph)
+    r, _ = replay_slam(doc, RATE, odometry, **graph)
     return r, evaluate(r)["ate"]["rmse"]
 
 
@@ -43,7 +43,11 @@ def test_a_good_narrow_scan_map_is_not_called_bent_and_a_drifted_one_is(tmp_path
     assert c["loops"] >= 2 and c["revisit_keyframes"] >= 20, c
     assert not c["bent"] and c["median_m"] < c["tolerance_m"], c
     assert not any("likely bent" in w for w in good.warnings), good.warnings
-    drift, e_drift = _replay(doc, loop_closure=False, imu=False, manhattan=False)
+    # odometry and matching alone, the front end held to the wheels along-track: ATE 0.24 m, 18 revisits, bent. With
+    # the default front end (free along-track where the scan fixes it) the same run is 0.20 m off with 3 revisits:
+    # too few for the check to decide, and called ok (docs/consistency.md)
+    drift, e_drift = _replay(doc, {"prior_weight_along": 1000.0, "degenerate_ratio": 0.0},
+                             loop_closure=False, imu=False, manhattan=False)
     d = drift.consistency
     assert e_drift >= 2 * e_good and e_drift >= 0.08, (e_drift, e_good)
     assert d["bent"] and d["median_m"] > 2 * c["median_m"], d
