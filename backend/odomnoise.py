@@ -116,7 +116,7 @@ class OdomNoiseEstimator:
         if moving.sum() < self.min_samples // 2:
             return self.prior
         s = float(np.median(ea[moving] / d[moving]))
-        trans = _mad(((ea - s * d) / np.sqrt(d))[moving])
+        trans = _mad((ea[moving] - s * d[moving]) / np.sqrt(d[moving]))  # turns in place (d 0) left out
         h, k = _yaw_fit(d, dth, ey)
         res = ey - h * d - k * dth
         straight = moving & (np.abs(dth) < STRAIGHT)

@@ -394,7 +394,7 @@ FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw 
 STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
 DEGENERATE_SHARE = 0.2  # a share of degenerate front-end matches that has the odometry scale calibrated while running
 # a front-end prior weight (1/m², 1/rad²) above this holds the pose to the odometry: σ = 1/√w ≈ 0.3 m is what a scan
-# match's centimetres override; the KOS profile's 100–1000 (0.03–0.1 m) is not (backend/kosprofile.py)
+# match's centimetres override; the KOS profile's 100–300 (0.06–0.1 m) is not (backend/kosprofile.py)
 HELD_WEIGHT = 10.0
 MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
 

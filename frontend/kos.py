@@ -593,9 +593,8 @@ class KosAccumulator:
     with this rule). Each image then takes two passes: the nearest range per bin, then the mean of the ranges within
     `window` of it (the nearest surface's points; a nearer obstacle still wins, a farther one within the window is
     averaged in). Cameras added in turn keep, per bin, the nearest of their means (as kosframe.merge_cameras).
-    Not the default ([kos] nearest = point): with the unbiased scans the default KOS SLAM (front end held to the
-    wheels along-track) estimates the odometry scale about 0.25 % lower and its harsh-odometry office ATE rises from
-    0.06-0.08 to 0.09-0.10 m; the front end free along-track needs them (docs/benchmarks.md, KOS SLAM with harsh
+    The default ([kos] nearest = surface, kosframe.surface_window); `window` 0 keeps the nearest point. KOS SLAM's front
+    end, free along-track where the scan fixes it, needs the unbiased scans (docs/benchmarks.md, KOS SLAM with harsh
     wheel odometry).
     """
 

@@ -31,6 +31,7 @@ from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints  
 from kosmap.frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
 from kosmap.frontend import kos as K  # noqa: E402
 from kosmap.frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view  # noqa: E402
+from kosmap.frontend.kosframe import surface_window  # noqa: E402
 from kosmap.tools.benchutil import pin_one_core  # noqa: E402
 from kosmap.tools.data import REPO  # noqa: E402
 
@@ -125,7 +126,7 @@ def _stages(depth, mask, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_loca
 
 def profile(d, cam, mount, pixels, b, dcfg, repeat) -> dict:
     """Where an add_depth call (3 levels + obstacle, plane pixels) spends its time, stage by stage (CPU ms)."""
-    acc = KosAccumulator(KosConfig(), b, dcfg.min_depth, dcfg.max_depth)
+    acc = KosAccumulator(KosConfig(), b, dcfg.min_depth, dcfg.max_depth, surface_window(KosConfig(), FspfConfig()))
     img = np.asarray(d, np.float32)
     mask = K._mask(img.shape, pixels)
     tb = acc._pixel_table(cam, mount)
@@ -186,7 +187,8 @@ def main() -> None:
             if kind not in ("img", "pts"):
                 continue
             n_lev, src = int(key[3]), key.split("_")[1]
-            acc = KosAccumulator(KosConfig(levels=LEVELS[n_lev]), b, dcfg.min_depth, dcfg.max_depth)
+            kcfg = KosConfig(levels=LEVELS[n_lev])  # the default bins: each nearest surface's mean
+            acc = KosAccumulator(kcfg, b, dcfg.min_depth, dcfg.max_depth, surface_window(kcfg, FspfConfig()))
             if kind == "img":
                 pix = planes.pixels if src == "planes" else None
                 run = lambda: (acc.reset(), acc.add_depth(d, cam, mount, pix), acc.ranges)  # noqa: E731

@@ -105,7 +105,7 @@ One configuration serves every log; these quantities are measured on the log as 
   between 1 m and 3 m (the candidates' radius grows with it); the rate starts at 1 %/m (or the odometry's measured
   drift where the front end leans on it, above) and follows the corrections accepted loops measure (correction ÷
   travel since the previous loop, over ≥ 10 m). A robot that went 100 m without a loop is searched ±3 m, one that
-  closes loops every few metres ±1 m, as the tuned constant was.
+  closes loops every few metres ±1 m.
 - **Loop acceptance score** (`[graph] loop_score = "derived"`): the branch-and-bound score is the mean over the query's
   points of exp(−d²/2σ²), d the distance to the nearest submap point, σ the search field's 0.1 m. A point that does
   lie on a mapped wall is expected to score σ/√(σ² + n² + r²/12), n the query scan's own scatter about its lines

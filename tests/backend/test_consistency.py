@@ -1,7 +1,8 @@
 """The self-consistency check (backend/consistency.py) on a narrow-scan KOS run: the simulated office (361 s, the
 corridor ring with two loops; one Kinect, 70.6° and ≤ 4.5 m, at 5 Hz and half resolution to keep CI short) mapped by
 KOS SLAM is a good map and is not called bent; the same recorded scans mapped on odometry and scan matching alone
-(loop closure, the gyro and the wall headings off, the front end held to the wheels) are bent, and are called so. The ground truth (ATE) agrees. Also
+(loop closure, the gyro and the wall headings off, the front end held to the wheels) are bent, and are called so.
+The ground truth (ATE) agrees. Also
 the rule's parts on their own: the scan's measured noise and the loop's own covariance."""
 
 from __future__ import annotations

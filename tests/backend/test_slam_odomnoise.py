@@ -58,8 +58,8 @@ def test_the_odometry_noise_is_measured_against_the_matcher(wheels):
     """Within 0.003 of the distance scale error, 0.1°/m of the heading drift, and 25 % of the random parts (the
     window is 400 intervals, 80 m: a median's spread is about 1.25σ/√400 ≈ 6 % of σ, the MAD's about 8 %; the turn's
     part is a difference of two, 40 %); with 5 % of the intervals slipping by 10 cm and 5°, the same within 0.005,
-    0.1°/m and 40 % (55 % for the turn). Measured over seeds 1–3: scale within 0.0016 (0.0043 slipping), heading drift
-    within 0.04°/m (0.045), random parts within 24 % (28 %)."""
+    0.1°/m and 40 % (55 % for the turn). Measured on seeds 1–3 (the test runs seed 1): scale within 0.0016 (0.0043
+    slipping), heading drift within 0.04°/m (0.045), random parts within 24 % (28 %)."""
     for slips, tol_s, tol_h, tol_r in ((0.0, 0.003, 0.1, 0.25), (0.05, 0.005, 0.1, 0.4)):
         n, truth = _estimate(wheels, 1, slips)
         assert n.measured and n.samples == 400
