@@ -154,6 +154,8 @@ KEYS = {  # key: (label, points key, what runs)
     "img3_planes": ("KOS image kernel, 3 levels + obstacle, FSPF+ plane pixels", "n_planes"),
     "img6_planes": ("KOS image kernel, 6 levels + obstacle, FSPF+ plane pixels", "n_planes"),
     "img3_depth": ("KOS image kernel, 3 levels + obstacle, all valid depth pixels", "n_depth"),
+    "img3_pointrule": ("KOS image kernel, 3 levels + obstacle, FSPF+ plane pixels, each bin's nearest point "
+                       "(`[kos] nearest = point`, thesis Alg. 7; the rows above keep the nearest surface's mean)", "n_planes"),
     "pts1_planes": ("KOS point kernel (before), 1 level + obstacle, FSPF+ points", "n_planes"),
     "pts3_planes": ("KOS point kernel (before), 3 levels + obstacle, FSPF+ points", "n_planes"),
     "pts3_depth": ("KOS point kernel (before), 3 levels + obstacle, all valid depth points", "n_depth"),
@@ -187,10 +189,11 @@ def main() -> None:
             if kind not in ("img", "pts"):
                 continue
             n_lev, src = int(key[3]), key.split("_")[1]
-            kcfg = KosConfig(levels=LEVELS[n_lev])  # the default bins: each nearest surface's mean
+            # the default bins keep each nearest surface's mean; "pointrule" the nearest point (thesis Alg. 7)
+            kcfg = KosConfig(levels=LEVELS[n_lev], nearest="point" if src == "pointrule" else "surface")
             acc = KosAccumulator(kcfg, b, dcfg.min_depth, dcfg.max_depth, surface_window(kcfg, FspfConfig()))
             if kind == "img":
-                pix = planes.pixels if src == "planes" else None
+                pix = None if src == "depth" else planes.pixels
                 run = lambda: (acc.reset(), acc.add_depth(d, cam, mount, pix), acc.ranges)  # noqa: E731
             else:
                 pts = planes.points if src == "planes" else allpts
