@@ -38,6 +38,10 @@ def test_slam_writes_every_output(ring_log, tmp_path, capsys):
     assert "ATE" in stdout
     assert f"estimated: wheel odometry distance scale {m['run']['odometry_scale']:.4f}" in stdout  # the graph's own
     assert "gyro" not in stdout  # no IMU in this log
+    on = m["run"]["odometry_noise"]  # measured against the scan matcher while running
+    assert on["measured"] and on["samples"] > 100, on
+    assert (f"wheel odometry measured against the scans ({on['samples']} intervals): distance "
+            f"{100 * on['scale_error']:+.2f} %") in stdout
 
 
 def test_slam_kos_source_without_depth_is_a_clear_error(ring_log, tmp_path, capsys):

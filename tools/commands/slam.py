@@ -3,6 +3,8 @@ reference is given (or against the log's own ground-truth topic)."""
 
 from __future__ import annotations
 
+import math
+
 import sys
 from pathlib import Path
 from typing import Annotated, Optional
@@ -75,6 +77,11 @@ def register(app: typer.Typer) -> None:
             cal.append(f"building axes {hd['axis_deg']:+.2f}° (heading priors on {hd['priors']} of {run['keyframes']} keyframes)")
         if cal:
             print("estimated: " + ", ".join(cal))
+        on = run.get("odometry_noise") or {}
+        if on.get("measured"):  # against the scan matcher while running (backend/odomnoise.py)
+            print(f"wheel odometry measured against the scans ({on['samples']} intervals): distance "
+                  f"{100 * on['scale_error']:+.2f} %, heading drift {math.degrees(on['heading_drift']):+.3f}°/m, random "
+                  f"{100 * on['trans_sigma']:.2f} cm/√m and {math.degrees(on['yaw_sigma']):.2f}°/√m")
         from kosmap.mapping.report import consistency_text
 
         print(f"self-consistency: {consistency_text(result.consistency)}")
