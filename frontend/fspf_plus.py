@@ -165,15 +165,12 @@ def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat
     return keep, n_in, n_out, cls, dropped
 
 
-@njit(cache=True, error_model="numpy")
-def _accept_plane_nb(prm, mom, n_in, start, n_out, out_pts, bx, by, bz, stats):
-    """The plane refitted from all its inliers' moments, rectified; rejected (ok False) when its inliers are a
-    strip no wider than the inlier band (min_width: its plane is not determined) or bend like a strip of a curved
-    surface (bend_max: a person, a pillar; tested on ≤ 256 of them, evenly strided, when their residual spread is
-    not far below ε). Returns (ok, nx, ny, nz, d)."""
-    inv = 1.0 / n_in
+@njit(cache=True, error_model="numpy", inline="always")
+def _plane_of_moments(mom, n, C):
+    """The least-squares plane of n points from their moment sums (fspf_kernels._add_moments): the covariance's
+    eigenvalues (ascending) and its smallest eigenvector, rectified to d ≥ 0. C: a 3×3 scratch array."""
+    inv = 1.0 / n
     mx, my, mz = mom[0] * inv, mom[1] * inv, mom[2] * inv
-    C = np.empty((3, 3))
     C[0, 0] = mom[3] * inv - mx * mx
     C[0, 1] = C[1, 0] = mom[4] * inv - mx * my
     C[0, 2] = C[2, 0] = mom[5] * inv - mx * mz
@@ -181,13 +178,23 @@ def _accept_plane_nb(prm, mom, n_in, start, n_out, out_pts, bx, by, bz, stats):
     C[1, 2] = C[2, 1] = mom[7] * inv - my * mz
     C[2, 2] = mom[8] * inv - mz * mz
     ev, v = np.linalg.eigh(C)
+    nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
+    d = -(nx * mx + ny * my + nz * mz)
+    if d < 0:
+        nx, ny, nz, d = -nx, -ny, -nz, -d
+    return ev, nx, ny, nz, d
+
+
+@njit(cache=True, error_model="numpy")
+def _accept_plane_nb(prm, mom, n_in, start, n_out, out_pts, bx, by, bz, stats):
+    """The plane refitted from all its inliers' moments, rectified; rejected (ok False) when its inliers are a
+    strip no wider than the inlier band (min_width: its plane is not determined) or bend like a strip of a curved
+    surface (bend_max: a person, a pillar; tested on ≤ 256 of them, evenly strided, when their residual spread is
+    not far below ε). Returns (ok, nx, ny, nz, d)."""
+    ev, fx_, fy_, fz_, fd = _plane_of_moments(mom, n_in, np.empty((3, 3)))
     if ev[1] < (prm.min_width * prm.eps) ** 2:
         stats[S_THIN] += 1
         return False, 0.0, 0.0, 0.0, 0.0
-    fx_, fy_, fz_ = v[0, 0], v[1, 0], v[2, 0]
-    fd = -(fx_ * mx + fy_ * my + fz_ * mz)
-    if fd < 0:
-        fx_, fy_, fz_, fd = -fx_, -fy_, -fz_, -fd
     if prm.bend_max > 0 and ev[0] > (0.2 * prm.eps) ** 2:  # residual RMS below ε/5: flat enough, no bend test
         step = max(1, n_in // 256)
         nb = 0
@@ -208,20 +215,7 @@ def _refit_planes_nb(pl_n, pl_d, pl_cnt, pl_mom, n_pl):
     (the covariance's smallest eigenvector). Compiled, as a 3×3 eigh per plane costs less here than numpy's call."""
     C = np.empty((3, 3))
     for k in range(n_pl):
-        mom = pl_mom[k]
-        inv = 1.0 / pl_cnt[k]
-        mx, my, mz = mom[0] * inv, mom[1] * inv, mom[2] * inv
-        C[0, 0] = mom[3] * inv - mx * mx
-        C[0, 1] = C[1, 0] = mom[4] * inv - mx * my
-        C[0, 2] = C[2, 0] = mom[5] * inv - mx * mz
-        C[1, 1] = mom[6] * inv - my * my
-        C[1, 2] = C[2, 1] = mom[7] * inv - my * mz
-        C[2, 2] = mom[8] * inv - mz * mz
-        v = np.linalg.eigh(C)[1]
-        nx, ny, nz = v[0, 0], v[1, 0], v[2, 0]
-        d = -(nx * mx + ny * my + nz * mz)
-        if d < 0:
-            nx, ny, nz, d = -nx, -ny, -nz, -d
+        _, nx, ny, nz, d = _plane_of_moments(pl_mom[k], pl_cnt[k], C)
         pl_n[k, 0], pl_n[k, 1], pl_n[k, 2] = nx, ny, nz
         pl_d[k] = d
 
