@@ -361,22 +361,23 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
         pose, _ = correlative_search(f.match_coarse[1], f.origin[0], f.origin[1], f.resolution, p64, pose,
                                      cfg.refine_search, f.resolution, math.radians(cfg.refine_search_deg),
                                      math.radians(1.0), 0.0, 0.0)
-    levels = list(zip((*f.match_coarse, f.match), (4 * cfg.match_sigma, 2 * cfg.match_sigma, cfg.match_sigma)))
-    first = 0 if coarse else 1
-    if coarse:  # a (re)started track: from the pose whose rays pass through the fewest walls, fine levels only
-        pose, first = _near_face(f, cfg, p64, pose), 1
-    for fld, sigma in levels[first:]:
-        pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
-                                  w, 10, True, sigma)
+    fine = ((f.match_coarse[1], 2 * cfg.match_sigma), (f.match, cfg.match_sigma))  # the fine levels (2σ, σ)
+
+    def match(pose: np.ndarray) -> np.ndarray:
+        for fld, sigma in fine:
+            pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose,
+                                      np.asarray(pred, float), w, 10, True, sigma)
+        return pose
+
+    if coarse:  # a (re)started track: from the pose whose rays pass through the fewest walls
+        pose = _near_face(f, cfg, p64, pose)
+    pose = match(pose)
     # the matcher's field peaks at both faces of a wall (a blueprint's wall is a band of cells): a pose a wall's
     # thickness off fits it about as well, its rays ending on the far face, and the prior towards the prediction
     # holds it there. When more than lost_through of the rays pass a map cell through a wall, the match starts
     # again from the nearby pose whose rays pass through the fewest walls
     if mcl.through_fraction(f, pose, p64, f.resolution) > cfg.lost_through:
-        pose = _near_face(f, cfg, p64, pose)
-        for fld, sigma in levels[1:]:
-            pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, np.asarray(pred, float),
-                                      w, 10, True, sigma)
+        pose = match(_near_face(f, cfg, p64, pose))
     return pose
 
 
