@@ -1,10 +1,10 @@
 """The Kinect Obstacle Scan (thesis Alg. 7), generalised: plane points → laser scans at several heights.
 
-Points (plane points from FSPF+, or all valid depth points) are moved into `base_link` with the camera's
-mount, kept when their height lies in a level's band, binned by bearing, and each bin keeps the nearest
-horizontal range (the thesis; [kos] nearest = point) or, the default, the mean range of the nearest surface's points (nearest =
-surface: KosAccumulator). Several cameras accumulate into the same bins. Written by hand (no library bins a
-cloud into several height bands in one pass) and compiled with numba.
+Points (plane points from FSPF+, or all valid depth points) are moved into `base_link` with the camera's mount,
+kept when their height lies in a level's band, binned by bearing, and each bin keeps the nearest horizontal range
+(the thesis; [kos] nearest = point) or, the default, the mean range of the nearest surface's points (nearest =
+surface: KosAccumulator). Several cameras accumulate into the same bins. Written by hand (no library bins a cloud
+into several height bands in one pass) and compiled with numba.
 
 Two kernels give the same bins. `KosAccumulator.add` takes N×3 points (any cloud; the reference). The
 pipeline's `KosAccumulator.add_depth` takes the depth image (and FSPF+'s plane pixels) and works from
@@ -593,9 +593,9 @@ class KosAccumulator:
     with this rule). Each image then takes two passes: the nearest range per bin, then the mean of the ranges within
     `window` of it (the nearest surface's points; a nearer obstacle still wins, a farther one within the window is
     averaged in). Cameras added in turn keep, per bin, the nearest of their means (as kosframe.merge_cameras).
-    The default ([kos] nearest = surface, kosframe.surface_window); `window` 0 keeps the nearest point. KOS SLAM's front
-    end, free along-track where the scan fixes it, needs the unbiased scans (docs/benchmarks.md, KOS SLAM with harsh
-    wheel odometry).
+    The default ([kos] nearest = surface, kosframe.surface_window); `window` 0 keeps the nearest point. KOS SLAM's
+    front end, free along-track where the scan fixes it, needs the unbiased scans (docs/benchmarks.md, KOS SLAM with
+    harsh wheel odometry).
     """
 
     def __init__(self, cfg: KosConfig, bearings: Bearings, min_range: float, max_range: float,
