@@ -105,13 +105,15 @@ class KosStream:
     def __init__(self, det, cfg: Config, run: ScanRun, pool: FramePool, limit: int | None = None,
                  on_frame: Callable[[KosFrame], None] | None = None,
                  cloud: Callable[[DepthItem], int] | None = None, min_period_ns: int = 0,
-                 fuse: bool = True, mounts: dict[str, Transform] | None = None) -> None:
+                 fuse: bool = True, mounts: dict[str, Transform] | None = None,
+                 keep: Callable[[DepthFrame], bool] | None = None) -> None:
         self.det, self.cfg, self.run, self.pool = det, cfg, run, pool
         self.limit = None if limit is None else limit * len(det.depth)
         self.on_frame = on_frame
         self.cloud = cloud  # plane points to keep of a frame (KosFrame.cloud; 0 = none)
         self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
         self._last: dict[str, int] = {}
+        self.keep = keep  # a depth frame it refuses is skipped as one within min_period is (the caller's rule)
         self.fuse = fuse  # add the scan fused with the laser to each step (else the step only names its laser)
         self.mounts = mounts or {}  # optical frame id → the gravity-aligned mount that replaces the given one
         self._seen: dict[tuple, np.ndarray] = {}  # bins in view, per set of cameras
@@ -130,6 +132,9 @@ class KosStream:
         """Absorb one record (depth frames go to the pool); the steps finished by now."""
         if isinstance(rec, Scan) and rec.topic == self.det.scan:
             self.lasers.append(rec)
+            return []
+        if self.keep is not None and isinstance(rec, DepthFrame) and rec.topic in self.det.depth and not self.keep(rec):
+            self.resolver.count += 1
             return []
         if self.min_period and isinstance(rec, DepthFrame) and rec.topic in self.det.depth:
             last = self._last.get(rec.topic)

@@ -113,12 +113,15 @@ def field_for(grid, cfg: LocalizeConfig, z_max: float) -> MapField:
 class _Filter:
     """The particle set, its weights, augmented MCL's averages and the KLD resampling between updates."""
 
-    def __init__(self, f: MapField, cfg: LocalizeConfig, rng: np.random.Generator, initial: np.ndarray | None) -> None:
+    def __init__(self, f: MapField, cfg: LocalizeConfig, rng: np.random.Generator, initial: np.ndarray | None,
+                 windowed: bool = False) -> None:
         self.f, self.cfg, self.rng = f, cfg, rng
         self.z_max = math.exp(-f.floor) * cfg.z_rand  # the floor is log(z_rand / z_max)
         self.global_n = int(min(cfg.global_max_particles, max(cfg.min_particles, cfg.global_density * f.free_area)))
         if initial is None:
-            self.parts = f.sample_free(self.global_n, rng)
+            # with the window's search the first pose is the search's claim, and the particles are seeded round its
+            # places (apply): a global set, most of a searching update's time, would only be replaced
+            self.parts = f.sample_free(cfg.min_particles if windowed else self.global_n, rng)
         else:  # AMCL's initial covariance: 0.5 m in x and y, π/12 in heading
             n = cfg.max_particles
             self.parts = initial + rng.normal(0, 1, (n, 3)) * np.array([0.5, 0.5, math.pi / 12])
@@ -160,12 +163,19 @@ class _Filter:
                                     self.rng)
             self.confirmed = True
             self.rec.w_slow = self.rec.w_fast = 0.0
-        else:
-            alive = v.prob >= 1e-3
-            extra = seed_round(v.poses[alive], np.full(int(alive.sum()), c.min_particles), c.search_fine,
-                               math.radians(2.0), self.rng)
+            self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+            return
+        alive = v.prob >= 1e-3
+        if not alive.any():
+            return
+        extra = seed_round(v.poses[alive], np.full(int(alive.sum()), c.min_particles), c.search_fine,
+                           math.radians(2.0), self.rng)
+        w = np.repeat(v.prob[alive] / c.min_particles, c.min_particles)
+        if self.found:
             self.parts = np.concatenate((self.parts, extra))
-        self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+            self.w = np.full(len(self.parts), 1.0 / len(self.parts))
+        else:  # the first pose is the search's to claim: the set is its places, weighted by their posterior
+            self.parts, self.w = extra, w / w.sum()
 
     def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
         self.parts = mcl.sample_motion_odometry(self.parts, u0, u1, self.alphas, self.rng)
@@ -212,10 +222,10 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     """Localize every scan of `inp` (mapping/locinput.py LocalizationInput) in the map `f`."""
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
-    flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float))
     # the window widens a narrow depth camera's view; a laser's 270° scan is wide by itself, and its filter's own
     # claim (the whole set tight for converged_updates) holds on the laser logs measured (docs/localize.md)
     ws = WindowSearch(f, cfg) if inp.has_odom and initial_pose is None and inp.source == "kos" else None
+    flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float), ws is not None)
     n = len(inp.stamps_ns)
     out = {k: np.zeros(n) for k in ("sx", "sy", "share", "score", "inl", "np", "ratio")}
     poses = np.zeros((n, 3))
@@ -251,7 +261,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             else:
                 flt.diffuse(inp.stamps[i] - t_last)
             t_last = inp.stamps[i]
-            flt.measure(pts)
+            if ws is None or flt.found:  # the first pose is the window search's claim: until then the set is
+                flt.measure(pts)  # its places (Filter.apply), and weighing them by one scan would add nothing
             est = mcl.estimate(flt.parts, flt.w)
             if ws is not None:
                 ws.window.add(u, pts)

@@ -142,7 +142,7 @@ def read_input(path: str | Path, cfg, source: str, progress: Callable[[float, fl
             return True
 
         reader = _read_kos if source == "kos" else _read_laser
-        stamps, points, warnings = reader(log, det, cfg, other, progress, info.duration, workers)
+        stamps, points, warnings = reader(log, det, cfg, other, progress, info.duration, workers, motion)
         warnings = warnings + list(log.warnings)
     if not stamps:
         raise TopicError(f"{name} gave no {'KOS' if source == 'kos' else 'laser'} scans to localize with; check "
@@ -160,7 +160,7 @@ def read_input(path: str | Path, cfg, source: str, progress: Callable[[float, fl
                              time.perf_counter() - t0, warnings)
 
 
-def _read_kos(log, det, cfg, other, progress, total, workers):
+def _read_kos(log, det, cfg, other, progress, total, workers, motion):
     from kosmap.frontend.odometry import scan_points_base
     from kosmap.mapping.kosstream import KosStream, ScanRun
     from kosmap.mapping.runtime.framepool import FramePool
@@ -188,7 +188,7 @@ def _read_kos(log, det, cfg, other, progress, total, workers):
     run = ScanRun()
     min_period = int(1e9 / lc.depth_rate) if lc.depth_rate > 0 else 0
     with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-        stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False)
+        stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False, keep=_FrameGate(lc, motion))
         for rec in log.read(det.wanted()):
             if other(rec):
                 continue
@@ -199,7 +199,31 @@ def _read_kos(log, det, cfg, other, progress, total, workers):
     return stamps, points, list(run.warnings)
 
 
-def _read_laser(log, det, cfg, other, progress, total, workers):
+class _FrameGate:
+    """Which depth frames are worth FSPF+ and KOS (most of a run's time): as AMCL takes a scan only after
+    update_min_d or update_min_a of motion, one after the wheels moved or turned that far since the camera's last
+    frame read, or frame_max_period_s after it (a standing robot still gets a pose, and no gap of max_gap_s is seen
+    where there is none). Every frame (at depth_rate) while the log has no odometry yet, or without read_at_updates."""
+
+    def __init__(self, lc, motion: _Motion) -> None:
+        self.min_d, self.min_a = lc.update_min_d, math.radians(lc.update_min_a_deg)
+        self.max_dt = int(lc.frame_max_period_s * 1e9)
+        self.on = bool(lc.read_at_updates)
+        self.motion = motion
+        self.last: dict[str, tuple[int, tuple[float, float, float] | None]] = {}
+
+    def __call__(self, rec) -> bool:
+        now = self.motion.odom_p[-1] if self.motion.odom_p else None
+        prev = self.last.get(rec.topic)
+        keep = (not self.on or prev is None or now is None or prev[1] is None or rec.stamp_ns - prev[0] >= self.max_dt
+                or math.hypot(now[0] - prev[1][0], now[1] - prev[1][1]) >= self.min_d
+                or abs(se2.wrap(now[2] - prev[1][2])) >= self.min_a)
+        if keep:
+            self.last[rec.topic] = (rec.stamp_ns, now)
+        return keep
+
+
+def _read_laser(log, det, cfg, other, progress, total, workers, motion=None):
     from kosmap.frontend.odometry import scan_to_points
 
     lc = cfg.localize
