@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from kosmap.frontend.camera import backproject
 from kosmap.frontend.errors import LogError
 from kosmap.frontend.planes import PLANE_CLASSES, Planes, classify
 from kosmap.frontend.records import Transform
@@ -88,59 +89,122 @@ class FloorTracker:
     Motion model: between frames the hand moves the camera by at most HAND_SPEED × their interval; a surface seen
     twice agrees within its gate k_sigma·√2·σ(z) (σ: the depth noise at its points' mean depth); `reach` is the
     two together. Each frame's level, up-facing planes (distance d below the camera, points):
-    - a plane farther down than the tracked floor's reach is a lower floor only when the next frame sees it again
-      (a single far plane may be a misfit: Kinect v1 offsets at 3 m stray by decimetres): the farthest seen in
-      both frames (until then it is one more plane the others place);
-    - else the camera height is the one, within reach of the last, that puts the frame's planes best on the floor
-      (0) and on the level surfaces measured before (`levels`: heights above the floor measured against the floor
-      in the same frame, so no error accumulates, each with its σ, used once two floor frames measured it): least
+    - the camera height is the one, within reach of the last, that puts the frame's planes best on the floor (0)
+      and on the level surfaces measured before (`levels`: heights above the floor measured against the floor in
+      a frame that sees both, so no error accumulates, each with its σ, used once two frames measured it): least
       truncated squares (each plane's points × (its distance to the nearest level / its gate)², at most its
       points), then the nearest to the last. A plane it puts on the floor becomes the floor (the height, and the
-      frame's other planes measure the levels); with no plane near the floor and no level known yet, the farthest
-      plane is taken for it.
-    So a frame that sees only the desk still puts the floor a desk's height further down (docs/planes.md). Frames
-    without a time stamp (NaN) have no motion model: each one's farthest level plane is its floor."""
+      frame's other planes measure the levels);
+    - a plane farther below the floor than `step` (and its gate once the frame is placed, the reach when it is
+      not), when the frame's points surely reach that far down (`deepest`: a misfit plane has no points below the
+      floor), is a level at a negative height, measured against the placed floor. Seen at that height in a second
+      frame, at any rate (a height below the floor does not change as the camera moves), it is the floor and
+      every level is re-based on it;
+    - the floor is `confirmed` (its planes may be called ground) once two frames saw it (a plane within `step` of
+      it) with something standing on it (a level surface at least `step` above it, or a wall from it to above the
+      camera) and no point of the frame surely more than `step` below it. A floor is the lowest surface, and
+      things stand on it: a desk filling the view, or a chair seat with the floor beside it, is not confirmed.
+      Points surely below the tracked floor withdraw the confirmation until a lower floor is found and confirmed.
+    Frames without a time stamp (NaN) have no motion model: each one's farthest level plane is its floor, confirmed
+    by that frame alone."""
 
     height: float = float("nan")  # the camera's height above the floor
     levels: np.ndarray = field(default_factory=lambda: np.zeros(0))  # known level surfaces' heights above the floor
     weights: np.ndarray = field(default_factory=lambda: np.zeros(0))  # points that measured each
-    sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # floor frames that measured each
+    sightings: np.ndarray = field(default_factory=lambda: np.zeros(0, int))  # frames that measured each
     spread: np.ndarray = field(default_factory=lambda: np.zeros(0))  # each level's σ: its and the floor's noise
     step: float = 0.15  # a level surface lower than this is the floor ([fspf] ground_max_height)
     k_sigma: float = 3.0
     stamp: float = float("nan")  # s, the last frame with level planes
-    lower: np.ndarray = field(default_factory=lambda: np.zeros(0))  # the last frame's planes below the floor
+    support: int = 0  # frames that confirmed the tracked floor (class doc)
+    walls: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # the frame's walls: bottom, top below camera
 
-    def update(self, offsets: np.ndarray, depths: np.ndarray, counts: np.ndarray, stamp: float) -> float:
+    @property
+    def confirmed(self) -> bool:
+        return self.support >= 2
+
+    def known(self) -> float:
+        """The camera's height above the floor once the floor is confirmed, else NaN."""
+        return self.height if self.confirmed else float("nan")
+
+    def update(self, offsets: np.ndarray, depths: np.ndarray, counts: np.ndarray, stamp: float,
+               deepest: float = float("nan"), walls: np.ndarray | None = None) -> float:
         """The camera's height above the floor after a frame's level, up-facing planes (distance below the camera,
-        mean depth, points); the last one when the frame has none, NaN before any."""
+        mean depth, points) and the distance below the camera of its lowest points (NaN: unknown); the last one
+        when the frame has none, NaN before any."""
+        self.walls = np.zeros((0, 2)) if walls is None else np.asarray(walls, float).reshape(-1, 2)
         d, w = np.asarray(offsets, float), np.asarray(counts, float)
         if not len(d):
+            self.refute(deepest)
             return self.height
         sigma = depth_sigma(depths)
-        reach = HAND_SPEED * ((stamp - self.stamp) if np.isfinite(stamp) and np.isfinite(self.stamp)
-                              and stamp > self.stamp else FRAME_PERIOD) + self.k_sigma * np.sqrt(2.0) * sigma
+        gate = self.k_sigma * np.sqrt(2.0) * sigma
+        timed = np.isfinite(stamp) and np.isfinite(self.stamp) and stamp > self.stamp
+        reach = HAND_SPEED * ((stamp - self.stamp) if timed else FRAME_PERIOD) + gate
         self.stamp = stamp
-        if not np.isfinite(self.height) or not np.isfinite(stamp):  # the first frame, or frames without times (no
-            return self.floor_at(int(np.argmax(d)), d, w, sigma)     # motion model): the farthest plane is the floor
-        lower, self.lower = self.lower, d[d > self.height + reach]
-        below = d > self.height + reach
-        again = below & (np.abs(d[:, None] - lower[None, :]) <= reach[:, None]).any(axis=1)
-        if again.any():  # a lower surface seen in two frames running: the farthest such is the floor
-            return self.floor_at(int(np.argmax(np.where(again, d, -np.inf))), d, w, sigma)
-        if not (np.abs(d - self.height) <= reach).any() and not len(self.levels):  # nothing places the camera:
-            # the height as it was beside a lower floor not yet confirmed, else the farthest plane is the floor
-            return self.height if below.any() else self.floor_at(int(np.argmax(d)), d, w, sigma)
-        self.height = self.relocate(d, w, sigma, reach)
-        floor = np.abs(d - self.height) < self.k_sigma * np.sqrt(2.0) * sigma  # the planes it puts on the floor
-        if floor.any():
-            return self.floor_at(int(np.argmin(np.where(floor, np.abs(d - self.height), np.inf))), d, w, sigma)
+        if not np.isfinite(stamp):  # frames without times (no motion model): each one's farthest plane, alone
+            self.support = 0
+            self.levels = self.levels[:0]
+            self.weights, self.sightings, self.spread = self.weights[:0], self.sightings[:0], self.spread[:0]
+        if not np.isfinite(self.height) or not np.isfinite(stamp):
+            self.floor_at(int(np.argmax(d)), d, w, sigma)
+            self.confirm(d, deepest, 2 if not np.isfinite(stamp) else 1)
+            return self.height
+        placed = (np.abs(d - self.height) <= reach).any() or bool(len(self.levels))
+        if placed:
+            self.height = self.relocate(d, w, sigma, reach)
+        on = np.abs(d - self.height) < gate  # the planes it puts on the floor
+        below = d - self.height > np.maximum(self.step, np.where(on.any() or placed, gate, reach))
+        below &= not deepest <= self.height + self.step  # the frame's points surely reach below the floor
+        if not (below.any() and self.lower(d, w, sigma, below)):
+            if on.any():
+                self.floor_at(int(np.argmin(np.where(on, np.abs(d - self.height), np.inf))), d, w, sigma)
+            elif not placed and not below.any():  # nothing places the camera: the farthest plane is the floor
+                self.floor_at(int(np.argmax(d)), d, w, sigma)
+        if (np.abs(d - self.height) <= self.step).any():  # the floor in view (within the ground band)
+            self.confirm(d, deepest, 1)
+        self.refute(deepest)
         return self.height
+
+    def lower(self, d: np.ndarray, w: np.ndarray, sigma: np.ndarray, below: np.ndarray) -> bool:
+        """Record the planes below the floor as levels at negative heights; the farthest of them seen at its height
+        before is the floor (True): the levels are re-based on it and the confirmation starts again."""
+        before = self.sightings.copy()
+        h = self.height - d[below]
+        self.learn(h, w[below], np.hypot(sigma[below], sigma[below]), low=True)
+        twice = (self.levels < 0) & (self.sightings >= 2) & (self.sightings > np.append(before, np.zeros(
+            len(self.levels) - len(before), int)))
+        if not twice.any():
+            return False
+        k = int(np.argmin(np.where(twice, self.levels, np.inf)))  # the lowest level seen twice
+        j = int(np.argmin(np.where(below, np.abs(self.height - d - self.levels[k]), np.inf)))
+        self.levels = self.levels - self.levels[k]  # heights above the new floor
+        keep = np.abs(self.levels) >= self.step
+        self.levels, self.weights = self.levels[keep], self.weights[keep]
+        self.sightings, self.spread = self.sightings[keep], self.spread[keep]
+        self.height, self.support = float(d[j]), 0
+        self.learn(self.height - d, w, np.hypot(sigma, sigma[j]))
+        return True
+
+    def confirm(self, d: np.ndarray, deepest: float, frames: int) -> None:
+        """The frame saw the tracked floor: it confirms it when something stands on it (a level surface at least
+        `step` above it, or a wall from it to above the camera) and no point lies more than `step` below it. (Any
+        wall standing on it would confirm a desk too: monitors stand on desks; on TUM fr1_xyz that took the desk for
+        the floor in up to 8 % of the ground planes.)"""
+        bottom, top = self.walls[:, 0], self.walls[:, 1]
+        wall = (np.abs(bottom - self.height) <= self.step) & (top <= 0.0)
+        if ((self.height - d >= self.step).any() or wall.any()) and not deepest > self.height + self.step:
+            self.support += frames
+
+    def refute(self, deepest: float) -> None:
+        """Points more than `step` below the tracked floor: it is no floor (not confirmed until a lower one is)."""
+        if deepest > self.height + self.step:
+            self.support = 0
 
     def relocate(self, d: np.ndarray, w: np.ndarray, sigma: np.ndarray, reach: np.ndarray) -> float:
         """The camera height that puts the frame's planes best on the floor and the known levels, within reach of
         the last (class doc); the last when none is."""
-        sure = self.sightings >= 2  # measured in two floor frames: not one plane's misfit
+        sure = (self.sightings >= 2) & (self.levels > 0)  # measured in two floor frames: not one plane's misfit
         levels = np.concatenate([[0.0], self.levels[sure]])
         spread = np.concatenate([[0.0], self.spread[sure]])  # each level's σ (the floor's noise when measured)
         cand = (d[:, None] + levels[None, :])
@@ -159,11 +223,12 @@ class FloorTracker:
         self.learn(self.height - d, w, np.hypot(sigma, sigma[j]))
         return self.height
 
-    def learn(self, heights: np.ndarray, counts: np.ndarray, sigmas: np.ndarray) -> None:
-        """Measure the level surfaces from one frame's planes' heights above the floor (a floor frame) and their σ."""
+    def learn(self, heights: np.ndarray, counts: np.ndarray, sigmas: np.ndarray, low: bool = False) -> None:
+        """Measure the level surfaces from one frame's planes' heights above the floor and their σ: those at least
+        `step` above it (a floor frame), or (low) those below it."""
         seen = np.zeros(len(self.levels), bool)
         for h, n, sg in zip(heights, counts, sigmas):
-            if h < self.step:
+            if (h < self.step) if not low else (h > -self.step):
                 continue
             k = int(np.argmin(np.abs(self.levels - h))) if len(self.levels) else -1
             if k >= 0 and abs(self.levels[k] - h) < self.k_sigma * np.sqrt(2.0) * np.hypot(sg, self.spread[k]):
@@ -183,7 +248,8 @@ class FloorTracker:
 @dataclass
 class GravityTracker:
     """Up and the camera's height above the floor over a sequence: up from the dominant level family, each frame's
-    estimate the next one's prior; the height from the floor, tracked (FloorTracker)."""
+    estimate the next one's prior; the height from the floor, tracked (FloorTracker). `height` is NaN until the
+    floor is confirmed: a level plane is then no ground (reclassify)."""
 
     up: np.ndarray = field(default_factory=lambda: LEVEL_UP.copy())
     height: float = float("nan")
@@ -191,13 +257,46 @@ class GravityTracker:
     frames: int = 0  # frames whose planes gave an estimate
     floor: FloorTracker = field(default_factory=FloorTracker)
 
-    def update(self, planes: Planes, stamp: float = float("nan")) -> np.ndarray:
+    def update(self, planes: Planes, stamp: float = float("nan"), depth: np.ndarray | None = None,
+               camera=None) -> np.ndarray:
+        """Up after a frame's planes (and its depth image and camera, when given, for the floor's confirmation:
+        no point may lie below the floor)."""
         up, _ = dominant_up(planes.normals, planes.counts, self.up, self.max_tilt_deg)
         if up is not None:
             self.up = up
             self.frames += 1
-            self.height = self.floor.update(*level_planes(planes, up), stamp)
+            deep = deepest(depth, camera, up) if depth is not None else float("nan")
+            self.floor.update(*level_planes(planes, up), stamp, deep, wall_spans(planes, up))
+            self.height = self.floor.known()
         return self.up
+
+
+def deepest(depth: np.ndarray, camera, up: np.ndarray, share: float = 0.005, stride: int = 4,
+            k_sigma: float = 3.0) -> float:
+    """How far below the camera (along up) the frame's lowest points surely lie: each point's distance below it
+    less k_sigma times its depth noise σ(z), exceeded by `share` of the points (every stride-th pixel of each
+    stride-th row; NaN without depth). Robust to a few stray pixels and to the far range's noise (a Kinect's
+    floor at 4 m strays by decimetres)."""
+    sub = np.asarray(depth)[::stride, ::stride]
+    r, c = np.nonzero(np.isfinite(sub) & (sub > 0))
+    if not len(r):
+        return float("nan")
+    pts = backproject(depth, camera, r * stride, c * stride).astype(np.float64)
+    return float(np.quantile(-(pts @ up) - k_sigma * depth_sigma(pts[:, 2]), 1.0 - share))
+
+
+def wall_spans(planes: Planes, up: np.ndarray, wall_deg: float = 80.0) -> np.ndarray:
+    """The walls' (planes tilted more than wall_deg from level) bottoms and tops as distances below the camera
+    (W×2): the mean ± √3 standard deviations of their points' heights (the ends of a uniform spread, as a wall seen
+    face on has)."""
+    wall = np.abs(planes.normals @ up) < np.cos(np.radians(wall_deg))
+    if not wall.any():
+        return np.zeros((0, 2))
+    below = -(planes.points.astype(np.float64) @ up)
+    n = np.maximum(planes.counts, 1)
+    mean = np.bincount(planes.plane, below, len(planes)) / n
+    sd = np.sqrt(np.maximum(np.bincount(planes.plane, below * below, len(planes)) / n - mean ** 2, 0.0))
+    return np.stack([mean + np.sqrt(3.0) * sd, mean - np.sqrt(3.0) * sd], axis=1)[wall]
 
 
 def level_planes(planes: Planes, up: np.ndarray, family_deg: float = 5.0,
@@ -210,7 +309,9 @@ def level_planes(planes: Planes, up: np.ndarray, family_deg: float = 5.0,
 
 
 def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
-    """The planes' classes from `up` (and the camera height for 'raised'), those of cfg.drop_classes dropped."""
+    """The planes' classes from `up` and the camera's height above the floor, those of cfg.drop_classes dropped.
+    Without a height (NaN: the floor not yet confirmed) no plane is ground: an up-facing level plane is 'raised'
+    (it may be a desk filling the view), and kept."""
     if not len(planes):
         return planes
     up, fwd, left = axes_from_up(up)
@@ -218,6 +319,8 @@ def reclassify(planes: Planes, up: np.ndarray, height: float, cfg) -> Planes:
                               height, cfg.ground_max_height)
     if np.isfinite(height):
         planes.classes[on_floor(planes, up, height, cfg.ground_max_height)] = PLANE_CLASSES.index("ground")
+    else:
+        planes.classes[planes.classes == PLANE_CLASSES.index("ground")] = PLANE_CLASSES.index("raised")
     return drop_classes(planes, cfg)
 
 

@@ -4,7 +4,9 @@ the mount in /tf_static or set in [depth], the log's IMU on the camera's rigid b
 
 A mount (the first source) is used as it is. Otherwise gravity is measured before the run on ≤ 30 frames spread over
 the log: each frame's up in the optical frame (the IMU's specific force, or the dominant level plane family of its
-FSPF+ planes, tracked: frontend/gravity.py) and the floor's distance below the camera; their median turns the given
+FSPF+ planes, tracked: frontend/gravity.py) and the floor's distance below the camera, tracked over those frames
+and taken once the floor is confirmed (frontend/gravity.FloorTracker: a desk or a box top filling a frame is not
+the floor); their median turns the given
 mount (its pitch and roll) until up is the base's +z, and sets its height (frontend/gravity.gravity_mount). A robot's
 camera is rigid on its base, so one mount per camera holds for the whole log, and serial and parallel runs see the
 same one.
@@ -19,7 +21,7 @@ import numpy as np
 
 from kosmap.frontend.camera import gravity_up
 from kosmap.frontend.fspf import filter_planes, frame_seed
-from kosmap.frontend.gravity import GravityTracker, floor_height, gravity_mount
+from kosmap.frontend.gravity import GravityTracker, deepest, gravity_mount, level_planes
 from kosmap.frontend.mountcal import pitch_roll
 from kosmap.frontend.records import Transform
 from kosmap.mapping.planes.frames import GRAVITY_WORDS, Override, log_frames
@@ -96,15 +98,17 @@ def resolve_gravity(path: Path, cfg, frames: int = SAMPLE_FRAMES) -> GravityMoun
             _, tracker, ups, heights = seen[item.frame_id]
             planes = filter_planes(item.depth, item.camera, keep_all, cfg.depth, item.mount,
                                    seed=frame_seed(cfg.fspf, item.index))
+            stamp = item.stamp_ns * 1e-9
             if item.gravity == "imu" and item.up is not None:
                 up = np.asarray(item.up, float)
+                tracker.floor.update(*level_planes(planes, up), stamp, deepest(item.depth, item.camera, up))
             else:
                 n = tracker.frames
-                up = tracker.update(planes)
+                up = tracker.update(planes, stamp, item.depth, item.camera)
                 if tracker.frames == n:  # no level plane family in this frame
                     continue
             ups.append(up)
-            heights.append(floor_height(planes.normals, planes.offsets, planes.counts, up))
+            heights.append(tracker.floor.known())  # the floor tracked and confirmed (frontend/gravity.FloorTracker)
     finally:
         src.frames.close()
     out = GravityMount(first.gravity)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from kosmap.frontend.camera import OPTICAL_ROTATION, gravity_up
 from kosmap.frontend.fspf import filter_planes, frame_seed
-from kosmap.frontend.gravity import GravityTracker, drop_classes, level_planes, reclassify
+from kosmap.frontend.gravity import GravityTracker, deepest, drop_classes, level_planes, reclassify
 from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.planes import Planes
 from kosmap.frontend.records import Transform
@@ -29,6 +29,7 @@ class Classes:
     calibrator: MountCalibrator = field(default_factory=MountCalibrator)
     used: dict[str, int] = field(default_factory=dict)  # frames per gravity source
     first_mount: tuple[Transform, str] | None = None  # the first frame's mount and gravity source
+    floor_m: float = float("nan")  # the last frame's camera height above the floor its classes used (NaN: none)
 
     def __call__(self, planes: Planes, item: Item) -> Planes:
         """The frame's plane classes from its gravity source, then its dropped classes removed; a mount's frames
@@ -38,13 +39,18 @@ class Classes:
         self.used[item.gravity] = self.used.get(item.gravity, 0) + 1
         fspf = self.cfg.fspf
         self.tracker.floor.step = fspf.ground_max_height
+        self.floor_m = float("nan")
         if item.gravity == "frames":
-            up = self.tracker.update(planes, item.stamp_ns * 1e-9)
+            up = self.tracker.update(planes, item.stamp_ns * 1e-9, item.depth, item.camera)
+            self.floor_m = self.tracker.height
             return reclassify(planes, up, self.tracker.height, fspf)
         if item.gravity in ("file", "imu"):
-            self.tracker.height = self.tracker.floor.update(*level_planes(planes, item.up), item.stamp_ns * 1e-9)
+            self.tracker.floor.update(*level_planes(planes, item.up), item.stamp_ns * 1e-9,
+                                      deepest(item.depth, item.camera, item.up))
+            self.tracker.height = self.floor_m = self.tracker.floor.known()
             return reclassify(planes, item.up, self.tracker.height, fspf)
         self.calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
+        self.floor_m = float(item.mount.translation[2])
         return drop_classes(planes, fspf)
 
     def mount_estimate(self, warnings: list[str]) -> dict | None:

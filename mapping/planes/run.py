@@ -117,7 +117,7 @@ def _filter_into(path: Path, out: Path, cfg, source: FrameSource, opts: PlanesOp
                 if empty == 1:
                     note(warnings, f"frame {n:06d} ({item.source}) has no eligible pixel: "
                                    + no_eligible_cause(item.depth, cfg.depth.min_depth, cfg.depth.max_depth))
-            table.add(f"{n:06d}", item, planes)
+            table.add(f"{n:06d}", item, planes, classes.floor_m)
             files.write(n, planes, item)
             if on_progress is not None:
                 on_progress(n + 1, source.total)

@@ -12,7 +12,8 @@ from kosmap.frontend.planes import Planes
 from kosmap.mapping.planes.frames import GRAVITY_WORDS, Item
 
 STATS_COLUMNS = ("frame", "source", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct",
-                 "unexamined_pct", "remaining", "planes", "elapsed_ms")
+                 "unexamined_pct", "remaining", "planes", "elapsed_ms", "gravity", "floor_m")
+NUMERIC = STATS_COLUMNS[3:-2]  # averaged in the summary row; gravity (the frame's source) and floor_m are not
 
 
 class StatsTable:
@@ -21,16 +22,19 @@ class StatsTable:
     def __init__(self) -> None:
         self.rows: list[dict] = []
 
-    def add(self, name: str, item: Item, planes: Planes) -> None:
+    def add(self, name: str, item: Item, planes: Planes, floor_m: float = float("nan")) -> None:
+        """A frame's row: its shares, its gravity source and the camera's height above the floor its classes used
+        (empty when none: no ground plane in that frame)."""
         self.rows.append({"frame": name, "source": item.source, "stamp": f"{item.stamp_ns * 1e-9:.6f}",
-                          **planes.stats.row(), "unexamined_pct": planes.stats.unexamined_pct})
+                          **planes.stats.row(), "unexamined_pct": planes.stats.unexamined_pct,
+                          "gravity": item.gravity, "floor_m": f"{floor_m:.4f}" if np.isfinite(floor_m) else ""})
 
     def __len__(self) -> int:
         return len(self.rows)
 
     def summary_row(self) -> dict:
         out: dict = {"frame": "summary", "source": f"{len(self.rows)} frames", "stamp": ""}
-        for c in STATS_COLUMNS[3:]:
+        for c in NUMERIC:
             vals = np.array([r[c] for r in self.rows], float)
             out[c] = float(vals.mean()) if len(vals) else 0.0
         return out
@@ -50,6 +54,6 @@ class StatsTable:
         means = self.summary_row()
         return {"input": str(path), "method": cfg.fspf.method, "frames": len(self.rows),
                 "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
-                **{k: means[k] for k in STATS_COLUMNS[3:]},
+                **{k: means[k] for k in NUMERIC},
                 "gravity": {k: {"frames": v, "from": GRAVITY_WORDS[k]} for k, v in gravity_used.items()},
                 "mount_estimate": mount_estimate, "warnings": list(warnings)}

@@ -18,12 +18,18 @@ FLOOR = 1  # BoxRoom's floor surface id
 ALL = FspfConfig(drop_classes=[])
 
 
+PERIOD = 0.5  # s between the frames
+
+
 def handheld(n: int, seed: int):
-    """n frames of a camera carried through the room: pitch 16–36° down, roll ±5°, height 0.9–1.5 m."""
+    """n frames of a camera carried through the room, PERIOD apart: pitch 16–36° down, roll ±5°, height 0.9–1.5 m,
+    moved up or down by up to 0.3 m between frames (a random walk of the hand, ≤ 0.6 m/s)."""
     rng = np.random.default_rng(seed)
     room, cam = BoxRoom(), kinect_v2()
+    h = rng.uniform(0.9, 1.5)
     for i in range(n):
-        pitch, roll, h = 16 + 20 * (0.5 + 0.5 * np.sin(i / 4.0 + seed)), 5 * np.sin(i / 3.0), rng.uniform(0.9, 1.5)
+        h = float(np.clip(h + rng.uniform(-0.3, 0.3), 0.9, 1.5)) if i else h
+        pitch, roll = 16 + 20 * (0.5 + 0.5 * np.sin(i / 4.0 + seed)), 5 * np.sin(i / 3.0)
         mount = mount_transform([0.1, 0.0, h], np.radians([roll, pitch, 0.0]))
         pose = (0.6 + 0.1 * i, 0.4 - 0.05 * i, 0.2 * np.sin(i / 6 + seed))
         depth, sid = render_depth(room, pose, mount, cam, np.random.default_rng(100 * seed + i))
@@ -31,16 +37,19 @@ def handheld(n: int, seed: int):
 
 
 def _score(frames, use_tracker: bool):
+    """Floor planes, those ground, ground planes, those level, up errors (°), height errors (m, frames with the
+    floor confirmed)."""
     tracker = GravityTracker()
     floor = floor_ground = ground = ground_level = 0
     errs, herrs = [], []
-    for depth, sid, cam, true_up, h in frames:
-        p = fspf_plus(depth, cam, ALL, seed=len(errs))  # no mount: a level camera at 1 m by default
+    for i, (depth, sid, cam, true_up, h) in enumerate(frames):
+        p = fspf_plus(depth, cam, ALL, seed=i)  # no mount: a level camera at 1 m by default
         if use_tracker:
-            up = tracker.update(p)
+            up = tracker.update(p, i * PERIOD, depth, cam)
             p = reclassify(p, up, tracker.height, ALL)
             errs.append(np.degrees(np.arccos(min(1.0, float(up @ true_up)))))
-            herrs.append(abs(tracker.height - h))
+            if np.isfinite(tracker.height):
+                herrs.append(abs(tracker.height - h))
         for k in range(len(p)):
             if p.counts[k] < 1000:  # sizeable planes (small strips cut across corners fit anything)
                 continue
@@ -55,13 +64,15 @@ def _score(frames, use_tracker: bool):
     return floor, floor_ground, ground, ground_level, errs, herrs
 
 
-@pytest.mark.parametrize("seed", [0, 1])
+@pytest.mark.parametrize("seed", [0, 2])
 def test_handheld_floor_is_ground_with_gravity_from_the_frames(seed):
-    floor, floor_ground, ground, ground_level, errs, herrs = _score(handheld(9, seed), True)
-    assert floor >= 6 and floor_ground / floor >= 0.90, (floor_ground, floor)
-    assert ground >= 6 and ground_level / ground >= 0.98, (ground_level, ground)
+    """The floor is ground once two frames confirmed it (the box top or a wall standing on it, nothing below it):
+    every floor plane after, none before; every ground plane level within 3°, the height then within 2 cm."""
+    floor, floor_ground, ground, ground_level, errs, herrs = _score(handheld(12, seed), True)
+    assert floor >= 10 and floor_ground >= floor - 3, (floor_ground, floor)  # ≤ 3 frames before it is confirmed
+    assert ground >= 8 and ground_level / ground >= 0.98, (ground_level, ground)
     assert np.median(errs) < 0.5 and max(errs) < 2.0, errs
-    assert np.median(herrs) < 0.02, herrs
+    assert len(herrs) >= 8 and max(herrs) < 0.02, herrs
 
 
 def test_handheld_floor_is_not_ground_with_a_level_default():
@@ -106,3 +117,45 @@ def test_floor_tracker_keeps_the_floor_under_a_desk_filling_the_view():
     assert out[-1] == pytest.approx(1.625, abs=0.01)
     frame(1.625, [(0.75, 80000), (-0.3, 5000)])  # … seen again: the lower floor
     assert out[-1] == pytest.approx(1.925, abs=0.01)
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("seed,start", [(0, 0), (1, 1), (2, 2)])
+def test_tum_floor_is_ground_at_a_quarter_of_the_rate(data_dir, seed, start):
+    """TUM fr1_xyz (a real handheld Kinect over a desk, no mount, no IMU used) at 3.75 Hz: every 4th frame of the
+    15 Hz sequence from frame `start`, so the hand moves the camera up to 11 cm between frames. Labelled as in
+    tests/tools/test_planes_real.py (the accelerometer's up in the mocap frame, a floor plane ≥ 1.3 m below the
+    camera and within 10° of it; "level" within 5° of the floor planes' own mean normal). The floor is tracked
+    through the frames that see only the desk and is ground only once confirmed: ≥ 97 % of the ground planes are
+    floor (the desk is never ground, also before the floor is first seen) and level; ≥ 84 % of the floor planes are
+    ground (measured 85–94 % over 5 seeds × 2 starts: the misses are floor fits tilted 5–12° by the Kinect's range
+    error, and the floor's first sightings before it is confirmed)."""
+    from scipy.spatial.transform import Rotation
+
+    from kosmap.tools.datasets import iter_dataset, read_tum_depth
+
+    folder = data_dir / "depth" / "tum_fr1_xyz"
+    acc, gt = np.loadtxt(folder / "accelerometer.txt"), np.loadtxt(folder / "groundtruth.txt")
+
+    def rot(t):
+        return Rotation.from_quat(gt[np.argmin(np.abs(gt[:, 0] - t)), 4:8]).as_matrix()
+
+    acc_up = np.mean([rot(a[0]) @ (a[1:] * np.array([-1.0, -1.0, 1.0])) for a in acc[::5]], axis=0)
+    acc_up /= np.linalg.norm(acc_up)
+    cam = next(iter_dataset(folder, 1)).camera
+    files = [line.split()[:2] for line in (folder / "depth_included.txt").read_text().splitlines() if line.strip()]
+    tracker, rows = GravityTracker(), []
+    for t, rel in files[start::4]:
+        depth, stamp = read_tum_depth(folder / rel), float(t)
+        p = fspf_plus(depth, cam, ALL, seed=seed)
+        p = reclassify(p, tracker.update(p, stamp, depth, cam), tracker.height, ALL)
+        big = p.counts >= 2000
+        rows += [(*(rot(stamp) @ n), d, c == PLANE_CLASSES.index("ground"))
+                 for n, d, c in zip(p.normals[big], p.offsets[big], p.classes[big])]
+    world, below, ground = np.array(rows)[:, :3], np.array(rows)[:, 3], np.array(rows)[:, 4] > 0
+    floor = (world @ acc_up > np.cos(np.radians(10.0))) & (below > 1.3)
+    up = world[floor].sum(axis=0) / np.linalg.norm(world[floor].sum(axis=0))
+    level = world @ up > np.cos(np.radians(5.0))
+    assert floor.sum() >= 60 and (floor & ground).sum() / floor.sum() >= 0.84, ((floor & ground).sum(), floor.sum())
+    assert ground.sum() >= 50 and (ground & floor).sum() / ground.sum() >= 0.97, ((ground & floor).sum(), ground.sum())
+    assert (ground & level).sum() / ground.sum() >= 0.97, ((ground & level).sum(), ground.sum())
