@@ -8,8 +8,9 @@ from collections import namedtuple
 import numpy as np
 from numba import njit
 
+from kosmap.frontend.fspf_coherence import _split_bridge_nb
 from kosmap.frontend.fspf_kernels import (_classify_nb, _curved_nb, _grow_nb, _inlier_fit_nb, _partition_nb, _randint,
-                                          _ransac_nb, _split_bridge_nb, _unmark_nb, _window_sample_nb)
+                                          _ransac_nb, _unmark_nb, _window_sample_nb)
 
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
