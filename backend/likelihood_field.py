@@ -28,7 +28,7 @@ class MapField:
 
     log_table: np.ndarray  # H×W float32: log(z_hit·exp(−d²/2σ_hit²) + z_rand/z_max)
     match: np.ndarray  # H×W float32: exp(−d²/2σ_match²), the scan matcher's field (frontend/matcher.py)
-    match_coarse: tuple  # the same with 4σ_match and 2σ_match: coarse to fine, as the SLAM front end matches
+    match_coarse: np.ndarray  # H×W float32: the same with 2σ_match, the coarser of the refinement's two levels
     free: np.ndarray  # H×W bool: cells a pose may lie in
     distance: np.ndarray  # H×W float32: metres to the nearest occupied cell's edge
     origin: tuple[float, float]
@@ -93,7 +93,7 @@ def map_field(data: np.ndarray, resolution: float, origin, sigma_hit: float, z_h
     table = np.log(z_hit * np.exp(-0.5 * (surface / sigma_hit) ** 2) + z_rand / z_max).astype(np.float32)
     match = np.exp(-0.5 * (surface / match_sigma) ** 2).astype(np.float32)
     free = (data >= 0) & (data <= FREE_MAX)
-    coarse = tuple(np.exp(-0.5 * (surface / (k * match_sigma)) ** 2).astype(np.float32) for k in (4.0, 2.0))
-    return MapField(np.ascontiguousarray(table), np.ascontiguousarray(match), coarse, free,
+    coarse = np.exp(-0.5 * (surface / (2.0 * match_sigma)) ** 2).astype(np.float32)
+    return MapField(np.ascontiguousarray(table), np.ascontiguousarray(match), np.ascontiguousarray(coarse), free,
                     np.minimum(d, 1e6).astype(np.float32), (float(origin[0]), float(origin[1])), res,
                     floor, float(match_sigma))

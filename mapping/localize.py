@@ -203,6 +203,38 @@ class _Filter:
         if self.updates % c.resample_interval == 0 or lost:
             self.resample(lost)
 
+    def decide(self, est, update: bool, windowed: bool, conv) -> bool:
+        """Whether the scan's pose is claimed (tracking), and the filter's state moved on accordingly."""
+        c = self.cfg
+        # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
+        # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
+        # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
+        fits = self.rec.ratio >= c.lost_ratio
+        whole = est.spread_xy <= conv.xy and est.spread_yaw <= conv.yaw and fits
+        mode = est.mode_weight >= c.converged_share * (1.0 - self.rec.p_random) and fits
+        held = mode and est.mode_xy <= conv.xy and est.mode_yaw <= conv.yaw
+        if update:
+            self.tight = self.tight + 1 if (held if self.found else whole) else 0
+        if not windowed:
+            converged = (held and self.tracking) or self.tight >= c.converged_updates
+        else:  # claimed first, and after a restart, only where the window's search confirms it. A claimed pose is
+            # kept while the scans fit as well as they did (w_fast/w_slow), however the particles spread: along a
+            # corridor the narrow scan sees two parallel walls, and the odometry's noise spreads them along it, in
+            # one mode or several, until a crossing wall is in view; a wrong pose shows in the measurements, in the
+            # readings through walls and in the window's checks
+            converged = (fits and self.tracking) or self.confirmed or (
+                self.found and not self.restarted and self.tight >= c.converged_updates)
+        self.confirmed = False
+        self.tracking = converged
+        if converged and (not self.found or self.restarted):
+            # from here the long-term average is the tracking one, not the search's
+            self.restarted = False
+            self.rec.w_slow = self.rec.w_fast
+        if converged:
+            self.found = True
+            self.lost_since = -1
+        return converged
+
     def resample(self, lost: bool) -> None:
         c = self.cfg
         searching = not self.found or lost or self.restarted
@@ -233,10 +265,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     status = np.zeros(n, np.int8)
     snaps: list[Snapshot] = []
     min_a = math.radians(cfg.update_min_a_deg)
-    conv_yaw = math.radians(cfg.converged_yaw_deg)
-    conv_xy = cfg.converged_xy
-    if not inp.has_odom:  # a set diffused by the random walk at each update is at least that wide (√2 σ in x and y)
-        conv_xy = math.hypot(conv_xy, math.sqrt(2.0) * cfg.no_odom_sigma_xy * cfg.no_odom_period_s)
+    conv = _Tight(cfg, inp.has_odom)
     est = mcl.estimate(flt.parts, flt.w)
     u_last = inp.odom[0] if inp.has_odom else None
     t_last = inp.stamps[0]
@@ -261,72 +290,20 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             else:
                 flt.diffuse(inp.stamps[i] - t_last)
             t_last = inp.stamps[i]
-            if ws is None or flt.found:  # the first pose is the window search's claim: until then the set is
-                flt.measure(pts)  # its places (Filter.apply), and weighing them by one scan would add nothing
-            est = mcl.estimate(flt.parts, flt.w)
-            if ws is not None:
-                ws.window.add(u, pts)
-                if not flt.tracking and ws.due():
-                    flt.apply(ws.search(flt.z_max))
-                    est = mcl.estimate(flt.parts, flt.w)
-                elif flt.tracking and ws.check_due() and ws.check(flt.z_max, est.pose if tracked is None else tracked):
-                    flt.restart()  # carried: the next search, due now, claims the checks' place if sure again
-                    tracked = None
+            est, tracked = _update(flt, ws, pts, u, tracked)
             if cfg.mcap_particles:
                 k = min(cfg.mcap_particles, len(flt.parts))
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
-        # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
-        # MCL's random particles (a share p_random of the set) lie beside it, so the share asked is less by as much
-        whole = est.spread_xy <= conv_xy and est.spread_yaw <= conv_yaw and flt.rec.ratio >= cfg.lost_ratio
-        mode = est.mode_weight >= cfg.converged_share * (1.0 - flt.rec.p_random) and flt.rec.ratio >= cfg.lost_ratio
-        held = mode and est.mode_xy <= conv_xy and est.mode_yaw <= conv_yaw
-        if update:
-            flt.tight = flt.tight + 1 if (held if flt.found else whole) else 0
-        if ws is None:
-            converged = (held and flt.tracking) or flt.tight >= cfg.converged_updates
-        else:  # claimed first, and after a restart, only where the window's search confirms it. A claimed pose is
-            # kept while the scans fit as well as they did (w_fast/w_slow), however the particles spread: along a
-            # corridor the narrow scan sees two parallel walls, and the odometry's noise spreads them along it, in
-            # one mode or several, until a crossing wall is in view; a wrong pose shows in the measurements, in the
-            # readings through walls and in the window's checks
-            keep = flt.rec.ratio >= cfg.lost_ratio
-            converged = (keep and flt.tracking) or flt.confirmed or (
-                flt.found and not flt.restarted and flt.tight >= cfg.converged_updates)
-        flt.confirmed = False
-        flt.tracking = converged
-        if converged and not flt.found:
-            flt.rec.w_slow = flt.rec.w_fast  # from here the long-term average is the tracking one, not the search's
-        if converged and flt.restarted:
-            flt.restarted = False
-            flt.rec.w_slow = flt.rec.w_fast
-        if converged:
-            flt.found = True
-            flt.lost_since = -1
+        converged = flt.decide(est, update, ws is not None, conv)
         status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
         pose = pose_f
         if converged and cfg.refine and len(pts) >= cfg.min_points:
-            pred, coarse = pose_f, True
-            if tracked is not None:
-                pt = se2.compose(tracked, se2.between(inp.odom[i - 1], u)) if inp.has_odom else tracked
-                gate_xy = max(cfg.refine_gate_sigmas * est.mode_xy, cfg.converged_xy)
-                gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv_yaw)
-                if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
-                    pred, coarse = pt, False
-            pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
-                           cfg.refine_prior_laser if inp.source == "laser" else None)
-            tracked = pose
-            # kidnapped (or wrong from the start): the readings pass through the map's walls at the refined pose
-            if cfg.lost_through < 1.0 and mcl.through_fraction(f, pose, pts, cfg.through_tol) > cfg.lost_through:
-                flt.bad_since = inp.stamps[i] if flt.bad_since is None else flt.bad_since
-                if inp.stamps[i] - flt.bad_since >= cfg.lost_through_s:
-                    flt.restart()
-                    ws.reset() if ws is not None else None
-                    flt.bad_since, tracked, status[i] = None, None, LOST
-            else:
-                flt.bad_since = None
+            pose, tracked, lost = _track(f, cfg, flt, inp, i, pose_f, est, tracked, conv)
+            if lost:
+                ws.reset() if ws is not None else None
+                status[i] = LOST
         else:
             tracked = None
         poses[i], fposes[i] = pose, pose_f
@@ -342,6 +319,58 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                           time.perf_counter() - t_start)
 
 
+class _Tight:
+    """How tight the particles must be for a pose to count as found."""
+
+    def __init__(self, cfg: LocalizeConfig, has_odom: bool) -> None:
+        self.yaw = math.radians(cfg.converged_yaw_deg)
+        self.xy = cfg.converged_xy
+        if not has_odom:  # a set diffused by the random walk at each update is at least that wide (√2 σ in x and y)
+            self.xy = math.hypot(self.xy, math.sqrt(2.0) * cfg.no_odom_sigma_xy * cfg.no_odom_period_s)
+
+
+def _update(flt: _Filter, ws: WindowSearch | None, pts: np.ndarray, u, tracked):
+    """One filter update on a scan (the particles already moved): the measurement, and with the window, its search
+    while no pose is held or its check while one is. The new estimate and the refined track (None: restarted)."""
+    if ws is None or flt.found:  # the first pose is the window search's claim: until then the set is its places
+        flt.measure(pts)  # (Filter.apply), and weighing them by one scan would add nothing
+    est = mcl.estimate(flt.parts, flt.w)
+    if ws is not None:
+        ws.window.add(u, pts)
+        if not flt.tracking and ws.due():
+            flt.apply(ws.search(flt.z_max))
+            est = mcl.estimate(flt.parts, flt.w)
+        elif flt.tracking and ws.check_due() and ws.check(flt.z_max, est.pose if tracked is None else tracked):
+            flt.restart()  # carried: the next search, due now, claims the checks' place if sure again
+            tracked = None
+    return est, tracked
+
+
+def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: np.ndarray, est, tracked, conv: _Tight):
+    """The refined pose of scan i (the filter holds a pose): from the track's own prediction while it stays within
+    refine_gate_sigmas of the filter's, else restarted at the filter's. Also (pose, track, lost): lost when its
+    readings have passed through the map's walls for lost_through_s (kidnapped, or wrong from the start)."""
+    pts, u = inp.points[i], (inp.odom[i] if inp.has_odom else None)
+    pred, coarse = pose_f, True
+    if tracked is not None:
+        pt = se2.compose(tracked, se2.between(inp.odom[i - 1], u)) if inp.has_odom else tracked
+        gate_xy = max(cfg.refine_gate_sigmas * est.mode_xy, cfg.converged_xy)
+        gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv.yaw)
+        if math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw:
+            pred, coarse = pt, False
+    pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
+                   cfg.refine_prior_laser if inp.source == "laser" else None)
+    if cfg.lost_through < 1.0 and mcl.through_fraction(f, pose, pts, cfg.through_tol) > cfg.lost_through:
+        flt.bad_since = inp.stamps[i] if flt.bad_since is None else flt.bad_since
+        if inp.stamps[i] - flt.bad_since >= cfg.lost_through_s:
+            flt.restart()
+            flt.bad_since = None
+            return pose, None, True
+    else:
+        flt.bad_since = None
+    return pose, pose, False
+
+
 def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The direction of travel between two odometry poses, or None when the robot turned in place."""
     d = se2.between(a, b)
@@ -351,7 +380,7 @@ def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True,
             uniform: float | None = None) -> np.ndarray:
     """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: refine_prior_along along the
-    direction of travel (ten times refine_prior_xy by default), refine_prior_xy across it. `coarse`: from the
+    direction of travel (refine_prior_xy by default), refine_prior_xy across it. `coarse`: from the
     filter's pose, a correlative search first, then the pose whose rays pass through the fewest walls; from the
     track's own prediction, which the odometry of one step hardly moves, directly; both at the fine levels only
     (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""
@@ -369,10 +398,10 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
     if coarse and cfg.refine_search > 0:
         # from the filter's pose, a few particles' spacing off: the best alignment within ±refine_search first
         # (Olson's correlative search, frontend/matcher.py), then Gauss–Newton from there
-        pose, _ = correlative_search(f.match_coarse[1], f.origin[0], f.origin[1], f.resolution, p64, pose,
+        pose, _ = correlative_search(f.match_coarse, f.origin[0], f.origin[1], f.resolution, p64, pose,
                                      cfg.refine_search, f.resolution, math.radians(cfg.refine_search_deg),
                                      math.radians(1.0), 0.0, 0.0)
-    fine = ((f.match_coarse[1], 2 * cfg.match_sigma), (f.match, cfg.match_sigma))  # the fine levels (2σ, σ)
+    fine = ((f.match_coarse, 2 * cfg.match_sigma), (f.match, cfg.match_sigma))  # the fine levels (2σ, σ)
 
     def match(pose: np.ndarray) -> np.ndarray:
         for fld, sigma in fine:

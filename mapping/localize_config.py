@@ -78,7 +78,7 @@ class LocalizeConfig(StageConfig):
     refine: bool = param(True, doc="refine each pose by Gauss–Newton against the map, starting from the last refined pose moved by the odometry")
     match_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="the matcher's field blur (one cell of a 5 cm map)", unit="m")
     refine_prior_xy: float = param(10.0, lo=0.0, doc="KOS: Gauss–Newton pull towards the predicted position, across the direction of travel (a tenth of the KOS profile's, backend/kosprofile.py: the map is fixed and right, a SLAM submap is not)", unit="1/m²")
-    refine_prior_along: float = param(100.0, lo=0.0, doc="… along it, ten times harder (a narrow scan sees one corridor wall, or a shelf before the wall the map has; the same as across fits the office's corridors better, 0.016-0.023 m instead of 0.054-0.074 m, but let the kidnapped room's track jump to the room's quarter-turn image for 3 s)", unit="1/m²")
+    refine_prior_along: float = param(10.0, lo=0.0, doc="… along it (as across: the odometry's noise model is about as wide along the path as across it over an update's 0.2 m; along a corridor only a door's edges fix the position, and a harder pull keeps the wheels' scale error until a crossing wall is in view)", unit="1/m²")
     refine_prior_yaw: float = param(10.0, lo=0.0, doc="… towards the predicted heading", unit="1/rad²")
     refine_search: float = param(0.3, lo=0.0, doc="where the refined track (re)starts at the filter's pose: a correlative search this far around it first (0 = none; the filter's mode is a few particle spacings wide)", unit="m")
     refine_search_deg: float = param(10.0, lo=0.0, doc="… and this far in heading", unit="deg")

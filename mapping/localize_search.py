@@ -193,7 +193,7 @@ def _polish(f: MapField, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     pose = np.asarray(pose, float)
     w = np.zeros((3, 3))
-    for fld, sigma in zip((f.match_coarse[1], f.match), (2 * f.match_sigma, f.match_sigma)):
+    for fld, sigma in zip((f.match_coarse, f.match), (2 * f.match_sigma, f.match_sigma)):
         pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, pose.copy(), w, 10, True,
                                   sigma)
     return pose
