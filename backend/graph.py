@@ -198,6 +198,9 @@ class PoseGraph:
         self.n_pending_nodes = 0
         self.factors: list = []  # the factor of each edge, in order
         self.odom_scale = 1.0  # estimated in the final solve (`odom_scale = "estimate"`)
+        # the scale's prior (mean, σ): N(1, odom_scale_sigma), or the scale measured against the scan matcher where
+        # it saw the motion on its own (backend/odomnoise.py; set by backend/slam.py)
+        self.scale_prior: tuple[float, float] | None = None
         self.gyro_bias = 0.0  # rad/s, estimated in the final solve (`gyro_bias = "estimate"`): the latest block's
         self.gyro_biases = np.zeros(0)  # rad/s per bias block (gyro_bias_block_s) after a solve
         self._chain: dict[int, np.ndarray] = {}  # node i → information (3×3) of the factors between i − 1 and i
@@ -548,7 +551,8 @@ class PoseGraph:
                 g.add(f)
         if scale:
             known.append(int(g.size()))
-            g.add(gtsam.PriorFactorVector(SCALE_KEY, np.array([1.0]), gtsam.noiseModel.Isotropic.Sigma(1, c.odom_scale_sigma)))
+            mean, sigma = self.scale_prior or (1.0, c.odom_scale_sigma)
+            g.add(gtsam.PriorFactorVector(SCALE_KEY, np.array([mean]), gtsam.noiseModel.Isotropic.Sigma(1, sigma)))
             vals.insert(SCALE_KEY, np.array([self.odom_scale]))
         if bias:
             known.append(int(g.size()))

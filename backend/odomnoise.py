@@ -26,6 +26,7 @@ MIN_SAMPLES = 40  # intervals before the measurement replaces the prior (≈ 8 m
 REFIT_EVERY = 25  # intervals between fits while running (the graph's ISAM2 cadence)
 MIN_STEP = 0.02  # m: an interval shorter than this tells nothing per metre (turning on the spot) for s and σ_t
 MAD_SIGMA = 1.4826  # σ of a normal distribution per median absolute deviation
+MEDIAN_SE = 1.2533  # standard error of a normal sample's median per σ/√n (√(π/2))
 STRAIGHT = math.radians(1.0)  # an interval turning less than this measures the yaw noise per metre driven
 TURNING = math.radians(2.0)  # … more than this, the yaw noise per radian turned
 
@@ -42,6 +43,7 @@ class OdomNoise:
     turn_sigma: float  # σ_r: random yaw error per √rad turned (rad/√rad)
     samples: int = 0  # intervals measured
     measured: bool = False  # False: the prior (too few intervals yet)
+    scale_error_sigma: float = float("nan")  # standard error of s (the median's: 1.2533 × σ / √n)
 
     def translation_sigma(self, d: float) -> float:
         """σ of the odometry's translation over d metres: the random walk and the scale error's share, together."""
@@ -115,7 +117,9 @@ class OdomNoiseEstimator:
         moving = d >= MIN_STEP
         if moving.sum() < self.min_samples // 2:
             return self.prior
-        s = float(np.median(ea[moving] / d[moving]))
+        per_m = ea[moving] / d[moving]
+        s = float(np.median(per_m))
+        s_se = MEDIAN_SE * _mad(per_m) / math.sqrt(len(per_m))
         trans = _mad((ea[moving] - s * d[moving]) / np.sqrt(d[moving]))  # turns in place (d 0) left out
         h, k = _yaw_fit(d, dth, ey)
         res = ey - h * d - k * dth
@@ -127,7 +131,7 @@ class OdomNoiseEstimator:
         if turning.sum() >= 10:  # var(res) = σ_θ²·d + σ_r²·|Δθ|: the turn's share of the normalised spread
             a = np.abs(dth[turning])
             turn_sig = math.sqrt(max(_mad(res[turning] / np.sqrt(a)) ** 2 - float(np.median(yaw_sig ** 2 * d[turning] / a)), 0.0))
-        return OdomNoise(s, trans, float(h), float(k), yaw_sig, turn_sig, len(r), True)
+        return OdomNoise(s, trans, float(h), float(k), yaw_sig, turn_sig, len(r), True, s_se)
 
 
 def _mad(x: np.ndarray) -> float:

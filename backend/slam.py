@@ -258,6 +258,10 @@ class Slam:
         noise = self.odom_noise.estimate()
         if noise.measured and self.gcfg.odom_noise == "measured":
             fe.odom_noise = noise
+            if math.isfinite(noise.scale_error_sigma) and noise.scale_error_sigma > 0:
+                # the graph's scale variable is otherwise seen only through the loose odometry factors and leans on
+                # its prior at 1: along a bare corridor the map then keeps most of the wheels' scale error
+                self.graph.scale_prior = (1.0 + noise.scale_error, noise.scale_error_sigma)
             # where the front end leans on the odometry (a corridor), its scale error is the estimate's drift
             self.loops.drift.odometry_rate = abs(noise.scale_error) * mark[1] / max(mark[0], 1)
 
