@@ -29,7 +29,7 @@ from numba import njit  # noqa: E402
 
 from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints  # noqa: E402
 from kosmap.frontend.fspf import FspfConfig, filter_planes, warmup  # noqa: E402
-from kosmap.frontend import kos as K  # noqa: E402
+from kosmap.frontend import kos_image as K  # noqa: E402
 from kosmap.frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view  # noqa: E402
 from kosmap.frontend.kosframe import surface_window  # noqa: E402
 from kosmap.tools.benchutil import pin_one_core  # noqa: E402
@@ -92,7 +92,7 @@ def cpu_ms(fn, repeat: int = 15) -> float:
 @njit(cache=True, error_model="numpy")
 def _stages(depth, mask, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, bin0, n, full_circle, lo, hi, dmin, dmax,
             rmin2, rmax2, out2, upto):  # pragma: no cover - compiled
-    """`frontend.kos._accumulate_image` stopped after stage `upto` (0 rows, 1 column bins, 2 band minima, 3 all).
+    """`frontend.kos_image._accumulate_image` stopped after stage `upto` (0 rows, 1 column bins, 2 band minima, 3 all).
     A copy on purpose: an `upto` argument on the kernel itself made add_depth ~1.4× slower (1.17 vs 0.75–0.89 ms
     for 3 levels + obstacle, measured 2026-11-23), the production path must not pay for the profile."""
     h, w = depth.shape
@@ -128,8 +128,11 @@ def profile(d, cam, mount, pixels, b, dcfg, repeat) -> dict:
     """Where an add_depth call (3 levels + obstacle, plane pixels) spends its time, stage by stage (CPU ms)."""
     acc = KosAccumulator(KosConfig(), b, dcfg.min_depth, dcfg.max_depth, surface_window(KosConfig(), FspfConfig()))
     img = np.asarray(d, np.float32)
-    mask = K._mask(img.shape, pixels)
+    mask = K.pixel_mask(img.shape, pixels)
     tb = acc._pixel_table(cam, mount)
+    g = K.ImageGrid(tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, *tb.t, tb.a0, 1.0 / b.angle_increment, tb.n_local, tb.bin0,
+                    b.n, b.full_circle, K._F(dcfg.min_depth), K._F(dcfg.max_depth), K._F(dcfg.min_depth ** 2),
+                    K._F(dcfg.max_depth ** 2))
     args = (img, mask, tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, *tb.t, tb.a0, 1.0 / b.angle_increment, tb.n_local, tb.bin0,
             b.n, b.full_circle, acc._lo32, acc._hi32, K._F(dcfg.min_depth), K._F(dcfg.max_depth),
             K._F(dcfg.min_depth ** 2), K._F(dcfg.max_depth ** 2), acc._r2)
@@ -138,11 +141,18 @@ def profile(d, cam, mount, pixels, b, dcfg, repeat) -> dict:
         _stages(*args, upto)
         stage.append(cpu_ms(lambda: _stages(*args, upto), repeat))
     full = cpu_ms(lambda: (acc.reset(), acc.add_depth(d, cam, mount, pixels)), repeat)
-    out = {"plane pixel mask (clear + set)": cpu_ms(lambda: K._mask(img.shape, pixels), repeat),
+    pts = K.image_buffers(img.shape, len(acc.names), True)  # the blocks the surface rule keeps
+    near2 = np.full_like(acc._r2, np.inf)
+    K._accumulate_image(img, mask, g, acc._lo32, acc._hi32, near2, pts)
+    lim2 = np.square(np.sqrt(near2) + K._F(acc.window))
+    sums = np.zeros(near2.shape), np.zeros(near2.shape, np.int64)
+    out = {"plane pixel mask (clear + set)": cpu_ms(lambda: K.pixel_mask(img.shape, pixels), repeat),
            "row pass (tables, bearing, band test; vectorised)": stage[0],
            "column bins per block": stage[1] - stage[0],
            "column band minima (all bands)": stage[2] - stage[1],
            "bin updates (scatter)": stage[3] - stage[2],
+           "surface rule: sums over the kept blocks (per column, vectorised) and bin updates":
+               cpu_ms(lambda: K._surface_image(pts, g, acc._lo32, acc._hi32, lim2, *sums), repeat),
            "ranges (sqrt, bands × bins)": cpu_ms(lambda: acc.ranges, repeat)}
     out["Python call overhead (rest)"] = full - sum(out.values())
     out["add_depth + ranges, total"] = full + out["ranges (sqrt, bands × bins)"]
@@ -214,6 +224,8 @@ def main() -> None:
     res["per_added_level_ms"] = (res["img3_planes"]["median"] - res["img1_planes"]["median"]) / 2
     res["per_added_level_ms_3_to_6"] = (res["img6_planes"]["median"] - res["img3_planes"]["median"]) / 3
     res["per_added_level_ms_before"] = (res["pts3_planes"]["median"] - res["pts1_planes"]["median"]) / 2
+    # the surface rule against the nearest point, frame by frame (both timed in turn on each frame)
+    res["surface_over_point"] = float(np.median(np.array(rows["img3_planes"]) / np.array(rows["img3_pointrule"])))
     res["profile_median_ms"] = {k: float(np.median([p[k] for p in prof])) for k in prof[0]}
     load_after = os.getloadavg()
     res["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
@@ -237,7 +249,9 @@ def main() -> None:
     lines += ["", f"Each added level: {res['per_added_level_ms']:.3f} ms (1 → 3 levels, halved; 3 → 6 levels: "
               f"{res['per_added_level_ms_3_to_6']:.3f} ms per level); the point kernel: {res['per_added_level_ms_before']:.3f} ms. "
               f"Targets: 3 levels + obstacle {'met' if ok3 else 'NOT met'} ({res['img3_planes']['median']:.3f} ms), "
-              f"per added level {'met' if okl else 'NOT met'}.", "",
+              f"per added level {'met' if okl else 'NOT met'}. The surface rule costs "
+              f"{res['surface_over_point']:.2f}× the nearest point's time (3 levels + obstacle, plane pixels; median "
+              f"over frames of the ratio, both timed in turn on each frame).", "",
               "Where an image-kernel call goes (3 levels + obstacle, FSPF+ plane pixels; CPU ms, median over frames; "
               "stages timed separately, so they need not add up exactly):", "", "| stage | ms |", "|---|---:|"]
     lines += [f"| {k} | {v:.3f} |" for k, v in res["profile_median_ms"].items()]
@@ -256,6 +270,14 @@ def main() -> None:
               "bin (vectorised over columns), so one bin update stands for up to 8 pixels; a column spread over > 2 bins "
               "(pitched camera, view edges) updates point by point.",
               "4. FSPF+'s plane pixels enter as a uint8 mask (reused buffer); `source = depth` needs no back-projection.",
+              "5. The surface rule (`[kos] nearest = surface`, the default: each bin keeps the mean range of its nearest "
+              "surface's points) keeps every block's bins, squared ranges and heights from the nearest-range pass "
+              "(a per-thread buffer) and sums them in a second pass against the nearest ranges found: per image column "
+              "and band the ranges within the limit in the column's lowest and highest bin, row by row and vectorised "
+              "over columns, then one bin update per column; blocks without a point in a band are skipped. The float32 "
+              "ranges sum exactly in float64 in any order, so the bins are bit for bit those of summing point by point "
+              "(tests/frontend/test_kos_surface.py). The nearest-point row above is the same call without the second "
+              "pass.",
               "", "Left (the profile above): the row pass runs over all 217k pixels whatever the mask (≈ 40 float ops each, "
               "8 lanes: numba has no per-function 512-bit preference; reading depth and mask alone is ≈ 0.1 ms); the band "
               "minima cost ≈ 0.04 ms per band; the bin updates are scalar. Tried and dropped (slower, vectorisation lost): "

@@ -10,7 +10,8 @@ import pytest
 
 from kosmap.frontend.camera import DepthConfig, backproject, depth_constraints
 from kosmap.frontend.fspf import FspfConfig, filter_planes
-from kosmap.frontend.kos import KosAccumulator, KosConfig, _pixel_table, bearings_for, camera_view
+from kosmap.frontend.kos import KosAccumulator, KosConfig, bearings_for, camera_view
+from kosmap.frontend.kos_bins import pixel_table
 from kosmap.tools.simulate.api import render_depth
 from kosmap.tools.simulate.render import camera_mount, kinect_v2_model
 from kosmap.tools.simulate.world import World
@@ -101,7 +102,7 @@ def test_pixel_tables_are_memoised_and_checked():
     b = bearings_for([(CAM, camera_mount())])
     acc = KosAccumulator(KosConfig(), b, 0.5, 4.5)
     assert acc._pixel_table(CAM, camera_mount()) is acc._pixel_table(kinect_v2_model(), camera_mount())
-    assert _pixel_table.cache_info().currsize >= 1
+    assert pixel_table.cache_info().currsize >= 1
     with pytest.raises(ValueError, match="424"):
         acc.add_depth(np.zeros((10, 10), np.float32), CAM, camera_mount())
 
