@@ -8,7 +8,6 @@ to the same rule."""
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 
