@@ -1,6 +1,7 @@
 """Benchmark: FSPF+ and FSPF (numba and numpy paths) beside pyransac3d and Open3D, ms per frame on one core.
 
     .venv/bin/python -m kosmap.tools.bench_planes [--sim-frames 12] [--real-frames 20] [--ransac-frames 4]
+    .venv/bin/python -m kosmap.tools.bench_planes --floor   # gravity from the frames on TUM fr1_xyz, 15 to 2.5 Hz
 
 Frames: simulated 512×424 Kinect v2 frames (tools/simulate when it is there, else the analytic box room
 of tools/boxroom.py) and real 640×480 TUM fr1_xyz frames. ε = 5, 10, 20 mm; everything else at the thesis's
@@ -149,8 +150,12 @@ def main(argv: list[str] | None = None) -> dict:
     ap.add_argument("--numpy-frames", type=int, default=4, help="frames for the numpy-only paths (slow)")
     ap.add_argument("--repeats", type=int, default=5, help="runs per frame for the numba paths; the fastest counts")
     ap.add_argument("--no-real", action="store_true", help="skip the real-frame section (labelled mOSD, Open3D)")
+    ap.add_argument("--floor", action="store_true", help="only gravity from the frames on TUM fr1_xyz at 15 to 2.5 Hz "
+                    "(floor planes ground, ground planes floor and level): planes_floor.json and .md")
     ap.add_argument("--out", type=Path, default=REPO / "docs" / "bench")
     args = ap.parse_args(argv)
+    if args.floor:
+        return _floor(args.out)
     pin = pin_one_core()
     warmup()
     dcfg = DepthConfig()
@@ -187,6 +192,21 @@ def main(argv: list[str] | None = None) -> dict:
     (args.out / "planes.json").write_text(json.dumps(out, indent=2))
     md = _markdown(out)
     (args.out / "planes.md").write_text(md)
+    print(md)
+    return out
+
+
+def _floor(out_dir: Path) -> dict:
+    """tools/planes_floor.py's table: docs/bench/planes_floor.json and planes_floor.md."""
+    from kosmap.tools.planes_floor import floor_markdown, floor_rows
+
+    load = os.getloadavg()[0]
+    rows = floor_rows(data_dir())
+    out = {"date": time.strftime("%Y-%m-%d %H:%M"), "load_average": load, "rows": rows}
+    out_dir.mkdir(parents=True, exist_ok=True)
+    (out_dir / "planes_floor.json").write_text(json.dumps(out, indent=2))
+    md = "\n".join(floor_markdown(rows, load)) + "\n"
+    (out_dir / "planes_floor.md").write_text(md)
     print(md)
     return out
 
