@@ -8,6 +8,7 @@ metrics.json and the files beside it, so a report can be rewritten from a finish
 
 from __future__ import annotations
 
+import math
 import os
 from pathlib import Path
 
@@ -145,6 +146,17 @@ def consistency_text(c: dict) -> str:
             f"revisits {med:.3f} m off (90 %: {c['p90_m']:.3f} m, {c['revisit_keyframes']} keyframes)")
     loops = f", {c['loops_disagreeing']}/{c['loops']} loops missed" if c.get("loops") else ""
     return head + loops + (": likely bent" if c.get("bent") else "")
+
+
+def odometry_noise_text(n: dict | None) -> str:
+    """The wheel odometry's noise measured against the scans while the SLAM ran (backend/odomnoise.py), in a few
+    words, for the report and the console; "–" when it was not measured (no odometry, too few intervals the
+    scans saw on their own, or a front end held to the odometry)."""
+    if not n or not n.get("measured"):
+        return "–"
+    return (f"distance {100 * n['scale_error']:+.2f} %, heading drift {math.degrees(n['heading_drift']):+.3f}°/m, "
+            f"random {100 * n['trans_sigma']:.2f} cm/√m and {math.degrees(n['yaw_sigma']):.2f}°/√m "
+            f"({n['samples']} intervals)")
 
 
 def run_warnings(metrics: dict) -> list[str]:
@@ -368,9 +380,11 @@ def _slam_blocks(m: dict, traj_png: Path | None) -> list[tuple]:
                          "off" if not hd else (hd["priors"] if not hd["disabled"] else "not Manhattan"),
                          _f(s.get("ate", {}).get("rmse"), 3), _f(s.get("ate", {}).get("max"), 3),
                          _f(s.get("ate_frontend", {}).get("rmse"), 3), _f(s.get("ate_odometry", {}).get("rmse"), 3),
-                         consistency_text(s.get("consistency") or {}), _f(sum(v for v in sec.values()), 1)])
+                         consistency_text(s.get("consistency") or {}), odometry_noise_text(s.get("odometry_noise")),
+                         _f(sum(v for v in sec.values()), 1)])
         B.append(("table", ["source", "scans", "keyframes", "loops", "heading priors", "ATE RMSE (m)", "ATE max (m)",
-                            "front end alone (m)", "wheel odometry (m)", "self-consistency", "SLAM time (s)"], rows))
+                            "front end alone (m)", "wheel odometry (m)", "self-consistency",
+                            "wheel odometry measured against the scans", "SLAM time (s)"], rows))
         B.append(("p", "Self-consistency needs no ground truth: where the robot came back (30 s or more later), how "
                        "far one rigid move brings its scans onto the earlier ones' walls (median, and 90th percentile), and how "
                        "many loops the solution misses by more than their own covariance allows; a map is likely bent when "

@@ -14,7 +14,7 @@ from kosmap.tools import options as O
 
 def print_headline(metrics: dict, out: Path) -> None:
     """The report's place and its headline numbers (what `kosmap build` and `kosmap demo` print)."""
-    from kosmap.mapping.report import consistency_text, headline, run_warnings
+    from kosmap.mapping.report import consistency_text, headline, odometry_noise_text, run_warnings
 
     h = headline(metrics)
     if h["partial"]:
@@ -31,6 +31,9 @@ def print_headline(metrics: dict, out: Path) -> None:
     for k, s in metrics.get("slam", {}).items():  # without ground truth too
         print(f"  consistency   {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  "
               f"{consistency_text(s.get('consistency') or {})}")
+        if (s.get("odometry_noise") or {}).get("measured"):  # against the scan matcher while running
+            print(f"  odometry      {('KOS' if k == 'kos' else 'laser') + ' SLAM':<{width}}  "
+                  f"{odometry_noise_text(s['odometry_noise'])}")
     t = metrics["timing"]
     print(f"  {t['total_s']:.1f} s for {t['log_s']:.1f} s of log: {t['realtime_factor']:.1f}× real time")
     for w in run_warnings(metrics):  # the run's, and a map that saw no obstacle (a KOS level out of the camera's sight)
