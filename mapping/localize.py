@@ -357,7 +357,7 @@ def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: 
         gate_xy = max(cfg.refine_gate_sigmas * est.mode_xy, cfg.converged_xy)
         gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv.yaw)
         near = math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw
-        if near or _fits_better(f, cfg, flt, pts, pt, pose_f):
+        if near or _track_holds(f, cfg, pts, pt):
             pred, coarse = pt, False
     pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
                    cfg.refine_prior_laser if inp.source == "laser" else None)
@@ -372,8 +372,7 @@ def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: 
     return pose, pose, False
 
 
-def _fits_better(f: MapField, cfg: LocalizeConfig, flt: _Filter, pts: np.ndarray, track: np.ndarray,
-                 mode: np.ndarray) -> bool:
+def _track_holds(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, track: np.ndarray) -> bool:
     """Whether the track's pose still holds though the filter's mode lies far from it: its readings do not pass
     through the map's walls (lost_through at through_tol, the kidnapping test). The particles spread along a corridor
     or over a look-alike place in several modes, and the heaviest one can jump between them on one scan's noise;
