@@ -96,10 +96,11 @@ class FloorTracker:
       points), then the nearest to the last. A plane it puts on the floor becomes the floor (the height, and the
       frame's other planes measure the levels);
     - a plane farther below the floor than `step` (and its gate once the frame is placed, the reach when it is
-      not), when the frame's points surely reach that far down (`deepest`: a misfit plane has no points below the
-      floor), is a level at a negative height, measured against the placed floor. Seen at that height in a second
-      frame, at any rate (a height below the floor does not change as the camera moves), it is the floor and
-      every level is re-based on it;
+      not), when the frame's points surely reach below the floor (`deepest`: a misfit plane has no points below
+      the floor) but not below the plane, is a level at a negative height, measured against the placed floor.
+      Seen at that height in a second frame, at any rate (a height below the floor does not change as the camera
+      moves), it is the floor, every level is re-based on it, and its first sighting counts as one frame that
+      confirms it (the old floor stood on it, nothing lay below it);
     - the floor is `confirmed` (its planes may be called ground) once two frames saw it (a plane within `step` of
       it) with something standing on it (a level surface at least `step` above it, or a wall from it to above the
       camera) and no point of the frame surely more than `step` below it. A floor is the lowest surface, and
@@ -155,7 +156,8 @@ class FloorTracker:
             self.height = self.relocate(d, w, sigma, reach)
         on = np.abs(d - self.height) < gate  # the planes it puts on the floor
         below = d - self.height > np.maximum(self.step, np.where(on.any() or placed, gate, reach))
-        below &= not deepest <= self.height + self.step  # the frame's points surely reach below the floor
+        below &= not deepest <= self.height + self.step  # the frame's points surely reach below the floor …
+        below &= ~(deepest > d + self.step)  # … and not below the plane (a chair seat with the floor beside it)
         if not (below.any() and self.lower(d, w, sigma, below)):
             if on.any():
                 self.floor_at(int(np.argmin(np.where(on, np.abs(d - self.height), np.inf))), d, w, sigma)
@@ -182,7 +184,7 @@ class FloorTracker:
         keep = np.abs(self.levels) >= self.step
         self.levels, self.weights = self.levels[keep], self.weights[keep]
         self.sightings, self.spread = self.sightings[keep], self.spread[keep]
-        self.height, self.support = float(d[j]), 0
+        self.height, self.support = float(d[j]), 1  # its first sighting: the old floor stood on it, none below
         self.learn(self.height - d, w, np.hypot(sigma, sigma[j]))
         return True
 

@@ -126,7 +126,7 @@ def test_tum_floor_is_ground_at_a_quarter_of_the_rate(data_dir, seed, phase):
     15 Hz sequence from frame `phase`, so the hand moves the camera up to 11 cm between frames. Labelled by the
     accelerometer and the ground-truth poses (tools/planes_floor.py). The floor is tracked through the frames that see
     only the desk and is ground only once confirmed: ≥ 97 % of the ground planes are floor (the desk is not ground,
-    also before the floor is first seen) and level within 5°; ≥ 84 % of the floor planes are ground (84.8–94.4 % over
+    also before the floor is first seen) and level within 5°; ≥ 85 % of the floor planes are ground (86.1–95.8 % over
     5 seeds × 2 phases, docs/bench/planes_floor.md: the misses are floor fits tilted 5–12° by the Kinect's range
     error, and the floor's first sightings before it is confirmed)."""
     from kosmap.tools.planes_floor import TumLabels, run_floor
@@ -134,5 +134,5 @@ def test_tum_floor_is_ground_at_a_quarter_of_the_rate(data_dir, seed, phase):
     folder = data_dir / "depth" / "tum_fr1_xyz"
     r = run_floor(folder, TumLabels(folder), seed, 4, phase)
     floor_ground, ground_floor, ground_level = r.shares()
-    assert r.floor >= 60 and floor_ground >= 0.84, r
+    assert r.floor >= 60 and floor_ground >= 0.85, r
     assert r.ground >= 50 and ground_floor >= 0.97 and ground_level >= 0.97, r
