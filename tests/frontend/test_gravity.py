@@ -18,17 +18,14 @@ FLOOR = 1  # BoxRoom's floor surface id
 ALL = FspfConfig(drop_classes=[])
 
 
-PERIOD = 0.5  # s between the frames
-
-
-def handheld(n: int, seed: int):
-    """n frames of a camera carried through the room, PERIOD apart: pitch 16–36° down, roll ±5°, height 0.9–1.5 m,
-    moved up or down by up to 0.3 m between frames (a random walk of the hand, ≤ 0.6 m/s)."""
+def handheld(n: int, seed: int, period: float = 0.5):
+    """n frames of a camera carried through the room, `period` seconds apart: pitch 16–36° down, roll ±5°, height
+    0.9–1.5 m, moved up or down by up to 0.6 m/s × period between frames (a random walk of the hand)."""
     rng = np.random.default_rng(seed)
     room, cam = BoxRoom(), kinect_v2()
     h = rng.uniform(0.9, 1.5)
     for i in range(n):
-        h = float(np.clip(h + rng.uniform(-0.3, 0.3), 0.9, 1.5)) if i else h
+        h = float(np.clip(h + rng.uniform(-0.6, 0.6) * period, 0.9, 1.5)) if i else h
         pitch, roll = 16 + 20 * (0.5 + 0.5 * np.sin(i / 4.0 + seed)), 5 * np.sin(i / 3.0)
         mount = mount_transform([0.1, 0.0, h], np.radians([roll, pitch, 0.0]))
         pose = (0.6 + 0.1 * i, 0.4 - 0.05 * i, 0.2 * np.sin(i / 6 + seed))
@@ -36,16 +33,16 @@ def handheld(n: int, seed: int):
         yield depth, sid, cam, mount.matrix()[:3, :3].T @ np.array([0.0, 0.0, 1.0]), h
 
 
-def _score(frames, use_tracker: bool):
+def _score(frames, use_tracker: bool, period: float = 0.5):
     """Floor planes, those ground, ground planes, those level, up errors (°), height errors (m, frames with the
-    floor confirmed)."""
+    floor confirmed) over frames `period` seconds apart."""
     tracker = GravityTracker()
     floor = floor_ground = ground = ground_level = 0
     errs, herrs = [], []
     for i, (depth, sid, cam, true_up, h) in enumerate(frames):
         p = fspf_plus(depth, cam, ALL, seed=i)  # no mount: a level camera at 1 m by default
         if use_tracker:
-            up = tracker.update(p, i * PERIOD, depth, cam)
+            up = tracker.update(p, i * period, depth, cam)
             p = reclassify(p, up, tracker.height, ALL)
             errs.append(np.degrees(np.arccos(min(1.0, float(up @ true_up)))))
             if np.isfinite(tracker.height):
@@ -64,11 +61,12 @@ def _score(frames, use_tracker: bool):
     return floor, floor_ground, ground, ground_level, errs, herrs
 
 
-@pytest.mark.parametrize("seed", [0, 2])
-def test_handheld_floor_is_ground_with_gravity_from_the_frames(seed):
+@pytest.mark.parametrize("seed,period", [(0, 0.5), (2, 0.5), (1, 0.2), (3, 1.5)])
+def test_handheld_floor_is_ground_with_gravity_from_the_frames(seed, period):
     """The floor is ground once two frames confirmed it (the box top or a wall standing on it, nothing below it):
-    every floor plane after, none before; every ground plane level within 3°, the height then within 2 cm."""
-    floor, floor_ground, ground, ground_level, errs, herrs = _score(handheld(12, seed), True)
+    every floor plane after, none before; every ground plane level within 3°, the height then within 2 cm; frames
+    0.2–1.5 s apart (the hand's reach between them 0.2–1.5 m)."""
+    floor, floor_ground, ground, ground_level, errs, herrs = _score(handheld(12, seed, period), True, period)
     assert floor >= 10 and floor_ground >= floor - 3, (floor_ground, floor)  # ≤ 3 frames before it is confirmed
     assert ground >= 8 and ground_level / ground >= 0.98, (ground_level, ground)
     assert np.median(errs) < 0.5 and max(errs) < 2.0, errs
