@@ -113,8 +113,9 @@ def global_search(sf: SearchField, pts: np.ndarray, keep: int, apart_xy: float, 
                   fine_xy: float) -> list[Candidate]:
     """The `keep` best distinct poses of the submap `pts` (N×2 in its own frame) over the whole map, best first.
 
-    Pass 1 scores a grid of twice the coarse spacing (and a field blurred by as much) over every free cell and every
-    heading (the step that moves the submap's farthest point by one coarse spacing); pass 2 re-scores the
+    Pass 1 scores a grid of twice the coarse spacing (and a field blurred by as much, so one submap point per square of
+    that size: nearer ones add nothing the blur tells apart) over every free cell and every heading (the step that
+    moves the submap's farthest point by one coarse spacing); pass 2 re-scores the
     neighbourhoods of its best `keep`·50 poses at the coarse spacing and keeps the best that lie at least `apart_xy`
     or `apart_yaw` from every better one; each is then searched on a `fine_xy` grid (Olson 2009's multi-resolution
     search, without its guarantee: a blurred field ranks poses, it does not bound them)."""
@@ -127,7 +128,7 @@ def global_search(sf: SearchField, pts: np.ndarray, keep: int, apart_xy: float, 
     yaws = np.arange(-math.pi, math.pi, dyaw)
     s1 = np.empty((len(yaws), len(xs)))
     _score_grid(sf.coarsest, sf.origin[0], sf.origin[1], sf.resolution, xs, ys, yaws,
-                np.ascontiguousarray(p[thin(p, step)]), s1)
+                np.ascontiguousarray(p[thin(p, 2 * step)]), s1)
     a, j = np.divmod(np.argsort(s1, axis=None)[::-1][: keep * 50], len(xs))
     d = np.array([-1.0, 0.0, 1.0])
     off = np.stack(np.meshgrid(d * 0.5 * step, d * 0.5 * step, d * 0.5 * dyaw, indexing="ij"), -1).reshape(-1, 3)
