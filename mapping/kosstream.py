@@ -113,7 +113,7 @@ class KosStream:
         self.cloud = cloud  # plane points to keep of a frame (KosFrame.cloud; 0 = none)
         self.min_period = int(min_period_ns)  # per camera: frames closer in time than this to the last kept are skipped
         self._last: dict[str, int] = {}
-        self.keep = keep  # a depth frame it refuses is skipped as one within min_period is (the caller's rule)
+        self.keep = keep  # a depth frame past min_period that it refuses is skipped as well (the caller's rule)
         self.fuse = fuse  # add the scan fused with the laser to each step (else the step only names its laser)
         self.mounts = mounts or {}  # optical frame id → the gravity-aligned mount that replaces the given one
         self._seen: dict[tuple, np.ndarray] = {}  # bins in view, per set of cameras
@@ -133,12 +133,11 @@ class KosStream:
         if isinstance(rec, Scan) and rec.topic == self.det.scan:
             self.lasers.append(rec)
             return []
-        if self.keep is not None and isinstance(rec, DepthFrame) and rec.topic in self.det.depth and not self.keep(rec):
-            self.resolver.count += 1
-            return []
-        if self.min_period and isinstance(rec, DepthFrame) and rec.topic in self.det.depth:
+        if isinstance(rec, DepthFrame) and rec.topic in self.det.depth and (self.min_period or self.keep is not None):
             last = self._last.get(rec.topic)
-            if last is not None and rec.stamp_ns - last < self.min_period - 1_000_000:  # 1 ms slack for stamp jitter
+            # 1 ms slack for stamp jitter; `keep` is asked only of a frame the period lets through
+            early = bool(self.min_period) and last is not None and rec.stamp_ns - last < self.min_period - 1_000_000
+            if early or (self.keep is not None and not self.keep(rec)):
                 self.resolver.count += 1  # the frame keeps its index (its seed) whether or not others are skipped
                 return []
             self._last[rec.topic] = rec.stamp_ns

@@ -18,7 +18,7 @@ class LocalizeConfig(StageConfig):
     section = "localize"
     depth_rate: float = param(10.0, lo=0.0, doc="KOS steps per second localized (0 = every depth frame), as [build] depth_rate", unit="Hz")
     read_at_updates: bool = param(True, doc="with wheel odometry, a depth frame is read (FSPF+ and KOS, most of a run's time) only once the wheels moved update_min_d or turned update_min_a_deg since the last frame read, as AMCL takes a scan only then: the filter and the window's search use no other frames, and one in between would only repeat its neighbours' view; false = every frame at depth_rate")
-    frame_max_period_s: float = param(0.5, lo=0.0, doc="... and at least this often (a standing robot still gets a pose, well within max_gap_s)", unit="s")
+    frame_max_period_s: float = param(0.5, lo=0.0, doc="... and at least this often (a standing robot still gets a pose; at most half max_gap_s, so that no gap is seen where none is)", unit="s")
     laser_rate: float = param(10.0, lo=0.0, doc="laser scans per second localized (0 = every scan)", unit="Hz")
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(12.0, lo=0.0, lo_open=True, doc="ignore returns farther than this (AMCL laser_max_range; the KOS scan ends at [depth] max_depth)", unit="m")

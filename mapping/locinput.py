@@ -207,7 +207,7 @@ class _FrameGate:
 
     def __init__(self, lc, motion: _Motion) -> None:
         self.min_d, self.min_a = lc.update_min_d, math.radians(lc.update_min_a_deg)
-        self.max_dt = int(lc.frame_max_period_s * 1e9)
+        self.max_dt = int(min(lc.frame_max_period_s, 0.5 * lc.max_gap_s) * 1e9)  # never a false gap
         self.on = bool(lc.read_at_updates)
         self.motion = motion
         self.last: dict[str, tuple[int, tuple[float, float, float] | None]] = {}
