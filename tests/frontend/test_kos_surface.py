@@ -3,7 +3,8 @@ summed per column) gives, bit for bit, the two-pass rule it stands for: per bin 
 the image, then the mean of the ranges within (nearest + window)² of it, summed point by point. The reference below
 is that rule in numpy over the same points (each pixel's bin, squared range and height from the kernel's row pass),
 on simulated frames of two worlds: level, pitched and rolled cameras (columns over one, two and many bins), bins of
-one column, of a fraction of one and of several, and two cameras on a full circle. The point kernel (`add`) is held
+one column, of a fraction of one and of several, two cameras on a full circle, and an image whose rows are not a
+whole number of the kernel's blocks. The point kernel (`add`) is held
 to the same rule."""
 
 from __future__ import annotations
@@ -43,45 +44,47 @@ def rule_in_numpy(bins, r2, z, lo, hi, n_bins):
         return np.square(np.where(count > 0, total / count, np.inf).astype(np.float32))
 
 
-def kept_points(cfg, b, depth, mount, pixels):
+def kept_points(cfg, b, cam, depth, mount, pixels):
     """A fresh accumulator given this one image, and each pixel's global bin (−1: dropped), squared range and height
     as the image kernel's row pass gave them (the blocks it keeps)."""
     one = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth, float(WINDOW))
-    one.add_depth(depth, CAM, mount, pixels)
+    one.add_depth(depth, cam, mount, pixels)
     ks, r2s, zs = (a.reshape(-1, a.shape[-1])[:depth.shape[0]] for a in image_buffers(depth.shape, 5, True)[:3])
-    tb = one._pixel_table(CAM, mount)
+    tb = one._pixel_table(cam, mount)
     bins = np.where(ks >= 0, (ks + tb.bin0) % b.n if b.full_circle else ks + tb.bin0, -1)
     return one, bins.ravel(), r2s.ravel(), zs.ravel()
 
 
-CASES = [  # world, pose, camera rpy, bin width (deg; 0: one per column), two cameras
-    ("office", (5.0, 3.0, 0.0), (0.0, 0.0, 0.0), 0.0, False),
-    ("office", (6.0, 4.0, 2.0), (0.3, 0.35, 0.0), 0.07, False),
-    ("room", (2.0, 2.0, 1.0), (-0.5, 0.2, 0.4), 1.0, True),
-    ("room", (1.5, 1.5, 0.2), (0.0, 0.6, 0.0), 0.0, True),
+CASES = [  # world, pose, camera rpy, bin width (deg; 0: one per column), two cameras, image size
+    ("office", (5.0, 3.0, 0.0), (0.0, 0.0, 0.0), 0.0, False, (512, 424)),
+    ("office", (6.0, 4.0, 2.0), (0.3, 0.35, 0.0), 0.07, False, (512, 424)),
+    ("room", (2.0, 2.0, 1.0), (-0.5, 0.2, 0.4), 1.0, True, (512, 424)),
+    ("room", (1.5, 1.5, 0.2), (0.0, 0.6, 0.0), 0.0, True, (512, 424)),
+    ("office", (3.0, 2.0, 1.5), (0.2, 0.3, 0.0), 0.0, True, (161, 99)),  # rows not a whole number of blocks
 ]
 
 
 @pytest.mark.parametrize("case", CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(CASES)])
 def test_image_kernel_surface_rule_bit_identical_to_two_passes(case):
-    world_name, pose, rpy, inc, two = case
+    world_name, pose, rpy, inc, two, (w, h) = case
+    cam = kinect_v2_model(width=w, height=h)
     world = load_world(world_name)
     mounts = [camera_mount(rpy=rpy)] + ([camera_mount(xyz=(-0.1, 0.05, 0.8), rpy=(rpy[0], rpy[1], rpy[2] + 2.5),
                                                        frame_id="rear_optical")] if two else [])
     cfg = KosConfig(levels=LEVELS)
-    b = bearings_for([(CAM, m) for m in mounts], inc)
+    b = bearings_for([(cam, m) for m in mounts], inc)
     acc = KosAccumulator(cfg, b, DEPTH.min_depth, DEPTH.max_depth, float(WINDOW))
     want = np.full((b.n, len(LEVELS) + 1), np.inf, np.float32)
     spread = 0
     for k, mount in enumerate(mounts):
-        depth, _ = render_depth(world, pose, mount, CAM, rng=np.random.default_rng(k))
-        pixels = filter_planes(depth, CAM, FspfConfig(analysed_fraction=0.99), DEPTH, mount, seed=k).pixels
+        depth, _ = render_depth(world, pose, mount, cam, rng=np.random.default_rng(k))
+        pixels = filter_planes(depth, cam, FspfConfig(analysed_fraction=0.99), DEPTH, mount, seed=k).pixels
         for pix in (pixels, None):  # FSPF+'s plane pixels, then every valid pixel into the same bins
-            one, bins, r2, z = kept_points(cfg, b, depth, mount, pix)
+            one, bins, r2, z = kept_points(cfg, b, cam, depth, mount, pix)
             ref = rule_in_numpy(bins, r2, z, one.lo.astype(np.float32), one.hi.astype(np.float32), b.n)
             np.testing.assert_array_equal(np.sqrt(ref.T), one.ranges)  # this camera alone, bit for bit
             np.minimum(want, ref, out=want)
-            acc.add_depth(depth, CAM, mount, pix)
+            acc.add_depth(depth, cam, mount, pix)
             cols = bins.reshape(depth.shape)
             spread = max(spread, int(np.max(np.where(cols >= 0, cols, -1).max(0) -
                                             np.where(cols >= 0, cols, 1 << 30).min(0))))
