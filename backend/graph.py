@@ -47,7 +47,7 @@ class GraphConfig(StageConfig):
     odom_noise: str = param("measured", choices=("measured", "fixed"), doc="wheel-odometry factor σ, the front end's search window and the loop window's drift from the odometry's noise measured while running against the scan matcher (backend/odomnoise.py; the odom_sigma_* above are its prior), or the odom_sigma_* as given")
     loop_closure: bool = param(True, doc="search for and add loop closures")
     submap_nodes: int = param(40, lo=2, doc="nodes per loop-closure submap")
-    loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps whose centre is within this distance", unit="m")
+    loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps with a node within this distance, plus 3σ of the pose uncertainty accumulated since the last accepted loop (backend/loops.py DriftModel.radius)", unit="m")
     loop_max_candidates: int = param(8, lo=1, doc="search at most this many candidate submaps per node, nearest first")
     loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it")
     loop_search_every: int = param(2, lo=1, doc="search for loops at every n-th node")
