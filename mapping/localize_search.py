@@ -25,7 +25,7 @@ import numpy as np
 from kosmap.backend import globalsearch as gs
 from kosmap.backend.likelihood_field import MapField
 from kosmap.frontend import se2
-from kosmap.frontend.matcher import gauss_newton
+from kosmap.frontend.matcher import correlative_search, gauss_newton
 from kosmap.mapping.localize_config import LocalizeConfig
 from kosmap.mapping.localize_window import ScanWindow
 
@@ -80,10 +80,13 @@ class WindowSearch:
             v = self._rigid(z_max, v)
         if v.claim:  # a later claim (after the pose is lost) needs two sure searches of its own
             self.sure = None
-            # the place's pose from the last metre of scans alone: over the whole window the wheels' scale error
-            # (1 % is 9 cm over 9 m) bends the submap, over a metre it does not
-            recent, _ = self.window.submap(self.cfg.search_min_m)
-            v.poses[0] = _polish(self.f, recent[gs.thin(recent, self.cfg.search_fine)], v.poses[0])
+            # the place's pose from the last check_m of scans: over the whole window the wheels' scale error (1 % is
+            # 9 cm over 9 m) bends the submap, over 3 m by less than a map cell, and 3 m of travel sees more than two
+            # corridor walls more often than one metre does. Its best alignment on the map's cells within the
+            # search's fine spacing first: Gauss–Newton alone stops at the nearest bump of the sharp field, and
+            # along a corridor the bumps are a door's edges
+            recent, _ = self.window.submap(self.cfg.check_m)
+            v.poses[0] = _settle(self.f, recent[gs.thin(recent, self.f.resolution)], v.poses[0], self.cfg.search_fine)
         return v
 
     def _rigid(self, z_max: float, v: Verdict) -> Verdict:
@@ -197,6 +200,15 @@ def _polish(f: MapField, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
         pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, pose.copy(), w, 10, True,
                                   sigma)
     return pose
+
+
+def _settle(f: MapField, pts: np.ndarray, pose: np.ndarray, window: float) -> np.ndarray:
+    """The best pose of `pts` on the map's cells within ±window and on half degrees within ±1° of `pose` (Olson's
+    correlative search, frontend/matcher.py, on the matcher's sharp field), then Gauss–Newton from there."""
+    p64 = np.ascontiguousarray(pts, dtype=np.float64)
+    best, _ = correlative_search(f.match, f.origin[0], f.origin[1], f.resolution, p64, np.asarray(pose, float), window,
+                                 f.resolution, math.radians(1.0), math.radians(0.5), 0.0, 0.0)
+    return _polish(f, p64, best)
 
 
 def _profile(f: MapField, poses: np.ndarray, pts: np.ndarray, views: np.ndarray, through: float,
