@@ -71,32 +71,39 @@ def tum_frames(folder: Path) -> list[tuple[float, Path]]:
     return [(float(t), folder / rel) for t, rel in rows]
 
 
-def run_floor(folder: Path, labels: TumLabels, seed: int, every: int, phase: int) -> FloorScore:
-    """Gravity from the frames over every `every`-th frame from frame `phase`, FSPF+ at `seed`."""
+def run_floor(folder: Path, labels: TumLabels, seed: int, every: int, phase: int,
+              period: float | None = None) -> FloorScore:
+    """Gravity from the frames over every `every`-th frame from frame `phase`, FSPF+ at `seed`; with `period`, the
+    tracker is told the frames lie that many seconds apart (as a folder of images played at a default rate)."""
     from kosmap.tools.datasets import iter_dataset, read_tum_depth
 
     cam = next(iter_dataset(folder, 1)).camera
     cfg, tracker, rows = FspfConfig(drop_classes=[]), GravityTracker(), []
-    for stamp, path in tum_frames(folder)[phase::every]:
+    frames = tum_frames(folder)[phase::every]
+    for i, (stamp, path) in enumerate(frames):
         depth = read_tum_depth(path)
         p = fspf_plus(depth, cam, cfg, seed=seed)
-        p = reclassify(p, tracker.update(p, stamp, depth, cam), tracker.height, cfg)
+        told = stamp if period is None else frames[0][0] + i * period
+        p = reclassify(p, tracker.update(p, told, depth, cam), tracker.height, cfg)
         big = p.counts >= 2000
         rows += [(stamp, n, d, c == GROUND) for n, d, c in zip(p.normals[big], p.offsets[big], p.classes[big])]
     return labels.score(rows)
 
 
-def floor_rows(data_dir: Path, seeds=range(5), rates=(1, 2, 3, 4, 6)) -> list[dict]:
-    """One row per rate: the range over seeds (and phases, below 7.5 Hz) of the three shares."""
+def floor_rows(data_dir: Path, seeds=range(5), rates=(1, 2, 3, 4, 6), told=((1, 30.0), (4, 30.0))) -> list[dict]:
+    """One row per rate: the range over seeds (and phases, below 7.5 Hz) of the three shares; then the rates of
+    `told` (every, fps) with the tracker told the frames come at fps (a folder of images played at 30 fps)."""
     folder = data_dir / "depth" / "tum_fr1_xyz"
     if not folder.is_dir():
         return []
     labels, out = TumLabels(folder), []
-    for every in rates:
+    for every, fps in [(e, None) for e in rates] + list(told):
         phases = range(2) if every >= 3 else range(1)
-        runs = [run_floor(folder, labels, s, every, ph) for s in seeds for ph in phases]
+        runs = [run_floor(folder, labels, s, every, ph, None if fps is None else 1.0 / fps) for s in seeds
+                for ph in phases]
         sh = np.array([r.shares() for r in runs])
-        out.append({"every": every, "hz": 15.0 / every, "runs": len(runs), "seeds": len(seeds), "phases": len(phases),
+        out.append({"every": every, "hz": 15.0 / every, "told_fps": fps, "runs": len(runs), "seeds": len(seeds),
+                    "phases": len(phases),
                     "floor_ground": [float(np.nanmin(sh[:, 0])), float(np.nanmax(sh[:, 0]))],
                     "ground_floor": [float(np.nanmin(sh[:, 1])), float(np.nanmax(sh[:, 1]))],
                     "ground_level": [float(np.nanmin(sh[:, 2])), float(np.nanmax(sh[:, 2]))],
@@ -112,7 +119,8 @@ def floor_markdown(rows: list[dict], load: float) -> list[str]:
              "| floor planes per run | runs meeting ≥ 90 % / ≥ 98 % |", "|---|---|---|---|---|---|---|"]
     pct = "{:.1f}–{:.1f} %".format
     for r in rows:
-        lines.append(f"| {r['hz']:.2f} Hz (every {r['every']}) | {r['runs']} ({r['seeds']} × {r['phases']}) | "
+        told = f", told {r['told_fps']:.0f} fps" if r.get("told_fps") else ""
+        lines.append(f"| {r['hz']:.2f} Hz (every {r['every']}){told} | {r['runs']} ({r['seeds']} × {r['phases']}) | "
                      f"{pct(*(100 * np.array(r['floor_ground'])))} | {pct(*(100 * np.array(r['ground_floor'])))} | "
                      f"{pct(*(100 * np.array(r['ground_level'])))} | {r['floor_planes'][0]}–{r['floor_planes'][1]} | "
                      f"{r['runs_meeting_goals']} of {r['runs']} |")
