@@ -29,6 +29,11 @@ class StatsTable:
                           **planes.stats.row(), "unexamined_pct": planes.stats.unexamined_pct,
                           "gravity": item.gravity, "floor_m": f"{floor_m:.4f}" if np.isfinite(floor_m) else ""})
 
+    def floor_frames(self, gravity: str) -> int:
+        """The frames of that gravity source whose classes had the camera's height above the floor (the others
+        have no ground plane)."""
+        return sum(1 for r in self.rows if r["gravity"] == gravity and r["floor_m"] != "")
+
     def __len__(self) -> int:
         return len(self.rows)
 
@@ -55,5 +60,6 @@ class StatsTable:
         return {"input": str(path), "method": cfg.fspf.method, "frames": len(self.rows),
                 "median_ms": float(np.median(ms)), "p90_ms": float(np.percentile(ms, 90)),
                 **{k: means[k] for k in NUMERIC},
-                "gravity": {k: {"frames": v, "from": GRAVITY_WORDS[k]} for k, v in gravity_used.items()},
+                "gravity": {k: {"frames": v, "from": GRAVITY_WORDS[k], "floor_frames": self.floor_frames(k)}
+                            for k, v in gravity_used.items()},
                 "mount_estimate": mount_estimate, "warnings": list(warnings)}

@@ -96,7 +96,9 @@ def register(app: typer.Typer) -> None:
         with items_bar("planes", "frames") as tick:
             s = run_planes(source, out, cfg, frames, opts, on_progress=tick)
         for g in s["gravity"].values():
-            print(f"gravity: {g['from']} ({g['frames']} frames)")
+            floor = "" if g["floor_frames"] == g["frames"] else \
+                f"; the floor known in {g['floor_frames']}, no plane ground in the others"
+            print(f"gravity: {g['from']} ({g['frames']} frames{floor})")
         m = s["mount_estimate"]
         if m is not None:
             print(f"mount from the floor ({m['frames']} frames): pitch {m['pitch_deg']:.2f}°, roll {m['roll_deg']:.2f}°, "
