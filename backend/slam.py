@@ -27,7 +27,7 @@ from kosmap.backend.slamhealth import HealthTracker
 from kosmap.backend.slamhealth import warnings as stretch_warnings
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
-from kosmap.frontend.odometry import OdometryConfig, make_odometry
+from kosmap.frontend.odometry import OdometryConfig, held, make_odometry
 from kosmap.frontend.records import Scan
 
 
@@ -124,7 +124,7 @@ class Slam:
         self._fe_mark = (0, 0, 0)  # the front end's (matches, degenerate, recoveries) at the last keyframe
         o = self.ocfg
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
-        self._measure = max(o.prior_weight, o.prior_weight_along, o.prior_weight_yaw) <= HELD_WEIGHT
+        self._measure = not held(o)
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
@@ -397,9 +397,6 @@ _NO_POINTS.flags.writeable = False
 FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw this far (or 25 %) from the wheels'
 STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
 DEGENERATE_SHARE = 0.2  # a share of degenerate front-end matches that has the odometry scale calibrated while running
-# a front-end prior weight (1/m², 1/rad²) above this holds the pose to the odometry: σ = 1/√w ≈ 0.3 m is what a scan
-# match's centimetres override; the KOS profile's 100–300 (0.06–0.1 m) is not (backend/kosprofile.py)
-HELD_WEIGHT = 10.0
 MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
 
 

@@ -238,6 +238,16 @@ def scan_to_points(scan, mount: np.ndarray | None, min_range: float, max_range: 
                         float(m[0]), float(m[1]), float(m[2]), float(w) * dt, float(vx) * dt, float(vy) * dt)
 
 
+# a prior weight (1/m², 1/rad²) above this holds the pose to the odometry's prediction: σ = 1/√w ≈ 0.3 m is what a
+# scan match's centimetres override; the KOS profile's 100–300 (0.06–0.1 m) is not (backend/kosprofile.py)
+HELD_WEIGHT = 10.0
+
+
+def held(cfg: "OdometryConfig") -> bool:
+    """Whether the front end holds every match to the odometry's prediction (a prior weight above HELD_WEIGHT)."""
+    return max(cfg.prior_weight, cfg.prior_weight_along, cfg.prior_weight_yaw) > HELD_WEIGHT
+
+
 def prior_weight_matrix(yaw: float, w_across: float, w_along: float, w_yaw: float) -> np.ndarray:
     """W = w_along·uuᵀ + w_across·(I − uuᵀ) in x, y (u the heading), w_yaw on yaw."""
     u = np.array([math.cos(yaw), math.sin(yaw)])
@@ -393,15 +403,22 @@ class SubmapOdometry:
                                         cfg.gn_iterations, welsch, c.sigma)
                 pose, info, score = gauss_newton(f.values, f.origin[0], f.origin[1], f.resolution, pts64, p1, prior,
                                                  W, cfg.gn_iterations, welsch, f.sigma)
-                # the match tells the graph nothing along the weak direction: its pose there is the odometry's
-                # prediction, which the graph has as its own factor with the scale variable. Kept as the scan's
-                # geometric share, that information carried the prediction's scale error a second time, unscaled: on
-                # the simulated corridor ring with 2-3 % wheel errors the final solve kept the 42 m corridors 0.6-1 %
-                # long (scale 1.015 found against 1.024; docs/benchmarks.md, laser SLAM with harsh wheel odometry)
-                v = np.zeros(3)
-                v[:2] = np.linalg.eigh(extra[:2, :2])[1][:, 1]
-                P = np.eye(3) - np.outer(v, v)  # the projection that leaves the weak direction out (stays PSD)
-                info = P @ info @ P
+                # a free front end's match tells the graph nothing along the weak direction: its pose there is the
+                # odometry's prediction, which the graph has as its own factor with the scale variable. Kept as the
+                # scan's geometric share, that information carried the prediction's scale error a second time,
+                # unscaled: on the simulated corridor ring with 2-3 % wheel errors the final solve kept the 42 m
+                # corridors 0.6-1 % long (scale 1.015 found against 1.024; docs/benchmarks.md). A held front end (the
+                # KOS profile, every match pulled to the prediction) keeps the geometric share: without it the
+                # simulated office with a gyro found the wheels' scale 0.67 % long, against 0.3 % with it
+                v = np.linalg.eigh(extra[:2, :2])[1][:, 1]
+                share = geometry[0] / cfg.degenerate_ratio if held(cfg) else 0.0
+                info = info.copy()
+                if share > 0.0:
+                    info[:2, :2] -= (1.0 - share) * float(v @ info[:2, :2] @ v) * np.outer(v, v)
+                else:
+                    P = np.eye(3)
+                    P[:2, :2] -= np.outer(v, v)  # the projection that leaves the weak direction out (stays PSD)
+                    info = P @ info @ P
         return np.asarray(pose, dtype=float), float(score), info
 
     def _noise_window(self, pred: np.ndarray, lin: float, ang: float) -> tuple[float, float]:

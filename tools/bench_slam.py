@@ -103,7 +103,8 @@ One configuration serves every log; these quantities are measured on the log as 
   N(1, 0.05²).
 - **Along a bare corridor** (the two rules above together): the front end holds its along-track position to the
   wheels' prediction, so that direction of a degenerate match carries the prediction's scale error; the match factor
-  tells the graph nothing along it (the Gauss–Newton information projected off the weak direction), and the corridor's
+  of a free front end tells the graph nothing along it (the Gauss–Newton information projected off the weak direction;
+  the KOS profile's held front end keeps the scan's geometric share, which its gyro office run needs), and the corridor's
   length is the odometry factors' times the scale variable, which the measured scale anchors (the loose odometry
   factors alone left it at 1.015 against the true 1.024: the 42 m corridors came out 0.6–1 % long). Laser SLAM on the
   simulated corridor ring (SICK-like 180°, 181 beams; wheels 2 % and 2.8 % long, 0.3°/m heading bias; simulator,
