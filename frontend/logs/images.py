@@ -3,12 +3,14 @@
 The camera file (YAML or JSON) gives `fx, fy, cx, cy` and `depth_scale` (image units per metre: 1000 for
 millimetres, 5000 for TUM); `width`/`height` are optional. Open3D's `{"width", "height", "intrinsic_matrix"}`
 (column-major) and a row-major `K` are read too. Frames are stamped by their file name when it is a
-number (TUM's `1305031102.160407.png`), else at `fps` from zero.
+time (TUM's `1305031102.160407.png`, or an integer Unix time in s, ms, µs or ns), else at `fps` from zero (a
+numbered sequence, `000123.png`, counts frames).
 """
 
 from __future__ import annotations
 
 import json
+import math
 import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -34,11 +36,21 @@ def _natural(p: Path):
         return (1, 0.0, [int(t) if t.isdigit() else t for t in re.split(r"(\d+)", p.name)])
 
 
+# An integer name is a Unix time when it has the digits of one since 2001-09-09 (1e9 s) in s, ms, µs or ns;
+# shorter integers (000123.png) count frames, not seconds.
+_EPOCH_DIGITS_UNIT_NS = {10: 1_000_000_000, 13: 1_000_000, 16: 1_000, 19: 1}
+
+
 def _name_ns(stem: str) -> int | None:
+    """The time a file name says, in ns: seconds with a fraction (TUM's 1305031102.160407) or an integer Unix time
+    in s, ms, µs or ns; None for any other name (a frame counter, words)."""
     sec, dot, frac = stem.partition(".")
     if not sec.isdigit() or (dot and (not frac.isdigit() or len(frac) > 9)):
         return None
-    return int(sec) * 1_000_000_000 + (int(frac.ljust(9, "0")) if frac else 0)
+    if dot:
+        return int(sec) * 1_000_000_000 + int(frac.ljust(9, "0"))
+    unit = _EPOCH_DIGITS_UNIT_NS.get(len(sec))
+    return int(sec) * unit if unit and sec[0] != "0" else None
 
 
 # images whose names say they are not depth: colour, labels, masks, segmentations (the NYU/SUN/ScanNet layouts)
@@ -180,14 +192,18 @@ class ImageFolder(LogReader):
         if cf is None:
             self._warn(f"no camera file in {self.path}: using the field-of-view model and depth in "
                        f"{scale_words(self.depth_scale)} (give --camera FILE with fx, fy, cx, cy, depth_scale)")
+        if not (math.isfinite(fps) and fps > 0):
+            raise LogError(f"a frame rate of {fps} fps is no rate; give the camera's frames per second (e.g. 30)")
         self.fps = fps
         self.frame_id = frame_id
+        self.timed = False  # True when the file names are the frames' times, False when they play at fps
         self.stamps_ns = self._stamps()
 
     def _stamps(self) -> list[int]:
         """Nanoseconds from names like 1305031102.160407 (parsed exactly, not through a float), else at fps."""
         vals = [_name_ns(p.stem) for p in self.files]
         if all(v is not None for v in vals) and len(set(vals)) == len(vals):
+            self.timed = True
             return vals  # type: ignore[return-value]
         return [seconds_to_ns(i / self.fps) for i in range(len(self.files))]
 

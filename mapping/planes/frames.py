@@ -4,6 +4,7 @@ dataset, each as an `Item` with its camera, its mount and where its plane classe
 
 from __future__ import annotations
 
+import math
 from collections.abc import Generator, Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -54,22 +55,27 @@ class Override:
     intrinsics: dict | None = None  # fx, fy, cx, cy[, width, height] of the camera file
     depth_scale: float | None = None  # image units per metre: --depth-scale, else the camera file's depth_scale
     scale_from: str = ""  # which option gave depth_scale, for the warnings
+    fps: float | None = None  # --fps: the rate of a folder whose file names are no times
 
     def camera(self, shape: tuple[int, int], frame_id: str) -> CameraModel | None:
         """The camera file's model for an image of `shape`, or None without --camera."""
         return None if self.intrinsics is None else camera_model(self.intrinsics, shape, frame_id, "")
 
 
-def read_override(camera_file: Path | None, depth_scale: float | None) -> Override:
-    """Read --camera and check --depth-scale up front: a missing file or a scale ≤ 0 stops the run in one line."""
+def read_override(camera_file: Path | None, depth_scale: float | None, fps: float | None = None) -> Override:
+    """Read --camera and check --depth-scale and --fps up front: a missing file, a scale ≤ 0 or a rate ≤ 0 stops
+    the run in one line."""
     depth_scale = check_depth_scale(depth_scale)  # as image units per metre, whichever convention was given
+    if fps is not None and not (math.isfinite(fps) and fps > 0):
+        raise KosmapError(f"--fps {fps} is no frame rate; give the camera's frames per second (e.g. 30)")
     if camera_file is None:
-        return Override(None, None, depth_scale, f"--depth-scale {depth_scale:g}" if depth_scale is not None else "")
+        return Override(None, None, depth_scale, f"--depth-scale {depth_scale:g}" if depth_scale is not None else "",
+                        fps)
     intrinsics, file_scale = read_camera_file(camera_file, default_scale=None)
     if depth_scale is not None:
-        return Override(camera_file, intrinsics, depth_scale, f"--depth-scale {depth_scale:g}")
+        return Override(camera_file, intrinsics, depth_scale, f"--depth-scale {depth_scale:g}", fps)
     return Override(camera_file, intrinsics, file_scale,
-                    f"depth_scale {file_scale:g} of --camera {camera_file}" if file_scale is not None else "")
+                    f"depth_scale {file_scale:g} of --camera {camera_file}" if file_scale is not None else "", fps)
 
 
 def note(warnings: list[str], text: str) -> None:
@@ -88,6 +94,17 @@ def _log_meters(rec: DepthFrame, ov: Override, warnings: list[str]) -> np.ndarra
     return np.divide(rec.image, np.float32(ov.depth_scale), dtype=np.float32)
 
 
+def _note_rate(log, fps: float | None, from_frames: bool) -> None:
+    """Say how a folder's frames are timed where it matters: gravity from the frames tracks the floor with a
+    motion model that trusts the times (docs/planes.md)."""
+    if log.timed and fps is not None:
+        note(log.warnings, f"--fps {fps:g} is not used: the file names of {log.path} are the frames' times")
+    elif not log.timed and fps is None and from_frames:
+        note(log.warnings, f"the file names of {log.path} are no times: its frames play at {log.fps:g} fps, and "
+                           f"gravity from the frames assumes that rate; give --fps RATE if the camera took them at "
+                           f"another")
+
+
 def log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
                pattern: str | None = None) -> FrameSource:
     """Frames of a log (MCAP, bag) or of a folder of depth images; --camera and --depth-scale replace its own."""
@@ -96,9 +113,10 @@ def log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
 
     gravity_file = None
     if path.is_dir():  # the folder reader applies the camera file and the scale itself
-        log = ImageFolder(path, ov.camera_file, ov.depth_scale, pattern=pattern)
-        ov = Override()
+        log = ImageFolder(path, ov.camera_file, ov.depth_scale, fps=ov.fps or 30.0, pattern=pattern)
         gravity_file = read_gravity_file(path)
+        _note_rate(log, ov.fps, gravity_source(cfg.depth, "config", gravity_file is not None) == "frames")
+        ov = Override()
     elif pattern:
         raise KosmapError(f"--glob {pattern} applies to a folder of depth images; {path} is a log")
     else:

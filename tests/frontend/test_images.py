@@ -62,3 +62,26 @@ def test_depth_image_whose_header_claims_10_10_pixels_is_one_line(tmp_path):
     log = ImageFolder(tmp_path / "seq")
     with pytest.raises(LogError, match=r"cannot read depth image .*1305031102\.226738\.pgm \(.*\); check the file"):
         list(log.read())
+
+
+def test_names_are_times_only_when_they_read_as_one(tmp_path):
+    """TUM's seconds with a fraction and integer Unix times (s, ms, µs, ns) stamp the frames; a numbered sequence
+    (000, 001, ...) is no time and plays at fps."""
+    img = np.full((6, 8), 1000, np.uint16)
+    cases = {"sec": ["1305031102", "1305031103"], "ms": ["1305031102160", "1305031102226"],
+             "us": ["1305031102160407", "1305031102226738"], "ns": ["1305031102160407000", "1305031102226738000"],
+             "counter": ["000", "001"], "short": ["12", "13"]}
+    stamps = {}
+    for name, stems in cases.items():
+        d = tmp_path / name
+        d.mkdir()
+        for s in stems:
+            cv2.imwrite(str(d / f"{s}.png"), img)
+        log = ImageFolder(d, fps=4.0)
+        stamps[name] = (log.timed, log.stamps_ns)
+    assert stamps["sec"] == (True, [1305031102000000000, 1305031103000000000])
+    assert stamps["ms"] == (True, [1305031102160000000, 1305031102226000000])
+    assert stamps["us"] == stamps["ns"] == (True, [1305031102160407000, 1305031102226738000])
+    assert stamps["counter"] == stamps["short"] == (False, [0, 250_000_000])
+    with pytest.raises(LogError, match="is no rate"):
+        ImageFolder(tmp_path / "sec", fps=0.0)

@@ -63,9 +63,11 @@ def test_a_misspecified_mount_is_recovered_from_the_floor(capsys, tmp_path, case
 
 
 def test_handheld_folder_takes_gravity_from_the_frames(capsys, tmp_path):
-    """No mount, no gravity file: the frames give gravity, the floor is dropped as ground (the thesis's default)."""
+    """No mount, no gravity file: the frames (a second apart, --fps 1) give gravity, the floor is dropped as ground
+    (the thesis's default)."""
     folder = _folder(tmp_path, "hand", 5, BoxRoom(), 26.0, 4.0, 1.2, 2, handheld=True)
-    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "o", "--figures", "0", "--no-mcap")
+    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "o", "--figures", "0", "--no-mcap",
+                            "--fps", "1")
     assert code == 0, err
     s = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert set(s["gravity"]) == {"frames"} and "gravity: the frames" in stdout
@@ -76,7 +78,8 @@ def test_handheld_folder_takes_gravity_from_the_frames(capsys, tmp_path):
     assert code == 0 and s2["dropped_pct"] < 0.5 * s["dropped_pct"]  # a level camera at 1 m: the floor 'slanted'
     # a gravity file beside the images (gravity, pointing down, in the optical frame) is used when present
     (folder / "gravity-direction.txt").write_text("0 1 0\n")  # a level camera
-    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "file", "--figures", "0", "--no-mcap")
+    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "file", "--figures", "0", "--no-mcap",
+                            "--fps", "1")
     s3 = json.loads((tmp_path / "file" / "summary.json").read_text())
     assert code == 0 and set(s3["gravity"]) == {"file"} and s3["dropped_pct"] < 0.5 * s["dropped_pct"]
 
@@ -148,3 +151,42 @@ def test_build_mount_auto_replaces_a_wrong_tf_static_mount(capsys, tmp_path):
     assert src == "config" and abs(mount.translation[2] - 1.0) <= 0.01
     code, _, err = run(capsys, "planes", path, "--out", tmp_path / "o", "--set", 'depth.mount="auto"')
     assert code == 2 and "depth.mount = auto is resolved by `kosmap build`" in err
+
+
+def test_a_folder_without_times_plays_at_fps(capsys, tmp_path):
+    """Gravity from the frames tracks the floor with a motion model over the frames' times: a folder whose names
+    are no times plays at --fps (30 by default, said in a warning), and at the camera's true rate it gives the
+    same floor, frame by frame, as the same images named by their times; a rate that is none is refused."""
+    import csv
+    import shutil
+
+    folder = _folder(tmp_path, "hand", 6, BoxRoom(), 26.0, 4.0, 1.2, 3, handheld=True)
+    timed = tmp_path / "timed"
+    timed.mkdir()
+    shutil.copy(folder / "camera.json", timed)
+    for i in range(6):  # 2 Hz, as the names say
+        shutil.copy(folder / f"{i:03d}.png", timed / f"{1700000000 + i // 2}.{5 * (i % 2)}00000.png")
+
+    def rows(out):
+        with open(out / "stats.csv") as f:
+            return [r for r in csv.DictReader(f) if r["frame"] != "summary"]
+
+    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "o30", "--figures", "0", "--no-mcap")
+    assert code == 0 and "play at 30 fps" in stdout and "--fps RATE" in stdout, stdout
+    code, stdout, err = run(capsys, "planes", folder, "--out", tmp_path / "o2", "--figures", "0", "--no-mcap",
+                            "--fps", "2")
+    assert code == 0 and "--fps" not in stdout, stdout
+    code, stdout, err = run(capsys, "planes", timed, "--out", tmp_path / "t", "--figures", "0", "--no-mcap",
+                            "--fps", "2")
+    assert code == 0 and "--fps 2 is not used" in stdout, stdout
+    at2, named = rows(tmp_path / "o2"), rows(tmp_path / "t")
+    assert [float(r["stamp"]) for r in at2] == pytest.approx([0.5 * i for i in range(6)])
+    assert [r["floor_m"] for r in at2] == [r["floor_m"] for r in named]
+    assert [r["dropped_pct"] for r in at2] == [r["dropped_pct"] for r in named]
+    tracked = [(i, float(r["floor_m"])) for i, r in enumerate(at2) if r["floor_m"]]
+    assert len(tracked) >= 3  # the floor confirmed and tracked at the true rate: the camera's height within 2 cm
+    assert all(abs(h - (1.2 + 0.2 * np.sin(2 * i))) <= 0.02 for i, h in tracked), tracked
+    for bad in ("0", "-5", "nan"):
+        code, _, err = run(capsys, "planes", folder, "--out", tmp_path / f"bad{bad}", "--fps", bad)
+        assert code == 2 and "is no frame rate" in err and len(err.strip().splitlines()) == 1, err
+        assert not (tmp_path / f"bad{bad}").exists()

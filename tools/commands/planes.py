@@ -65,6 +65,7 @@ def register(app: typer.Typer) -> None:
         camera: Annotated[Optional[Path], typer.Option("--camera", help="Camera file (YAML/JSON: fx, fy, cx, cy[, depth_scale]); replaces the intrinsics of the folder, dataset or log.")] = None,
         depth_scale: Annotated[Optional[float], typer.Option("--depth-scale", help="Scale of 16-bit depth, either convention: 1 or more is image units per metre (1000 = mm, 5000 = TUM), below 1 metres per unit (0.001 = mm, RealSense); overrides the camera file and the dataset's own.")] = None,
         glob: Annotated[Optional[str], typer.Option("--glob", help="The depth images of a folder, by pattern (e.g. '*_depth.png'); without it images named rgb, color, label, mask or seg and 8-bit or colour images are skipped and counted.")] = None,
+        fps: Annotated[Optional[float], typer.Option("--fps", help="Frame rate of a folder of depth images whose file names are not times (default 30); gravity from the frames tracks the floor by the frames' times.")] = None,
         figures: Annotated[int, typer.Option("--figures", help="How many frames get a Fig. 5.2-style figure (spread over the run).")] = 3,
         every: Annotated[int, typer.Option("--every", help="Process every Nth depth frame.")] = 1,
         max_frames: Annotated[Optional[int], typer.Option("--max-frames", help="Stop after this many frames.")] = None,
@@ -89,7 +90,7 @@ def register(app: typer.Typer) -> None:
         from kosmap.tools.progress import items_bar
 
         _check_args(source, every, max_frames, figures)  # everything checked before anything is read or written
-        ov = read_override(camera, depth_scale)
+        ov = read_override(camera, depth_scale, fps)
         check_out(out)
         frames = _source(source, cfg, ov, every, max_frames, glob)
         opts = PlanesOptions(save_depth=save_depth, figures=figures, mcap=not no_mcap, npz=not no_npz)
