@@ -116,7 +116,7 @@ def global_search(sf: SearchField, pts: np.ndarray, keep: int, apart_xy: float, 
     Pass 1 scores a grid of twice the coarse spacing (and a field blurred by as much, so one submap point per square of
     that size: nearer ones add nothing the blur tells apart) over every free cell and every heading (the step that
     moves the submap's farthest point by one coarse spacing); pass 2 re-scores the
-    neighbourhoods of its best `keep`·50 poses at the coarse spacing (one point per square of that size) and keeps the best that lie at least `apart_xy`
+    neighbourhoods of its best `keep`·50 poses at the coarse spacing and keeps the best that lie at least `apart_xy`
     or `apart_yaw` from every better one; each is then searched on a `fine_xy` grid (Olson 2009's multi-resolution
     search, without its guarantee: a blurred field ranks poses, it does not bound them)."""
     p = np.ascontiguousarray(pts, dtype=np.float64)
@@ -136,7 +136,7 @@ def global_search(sf: SearchField, pts: np.ndarray, keep: int, apart_xy: float, 
     cand = cand[_free_at(sf, cand)]
     s2 = np.empty(len(cand))
     _score_poses(sf.coarse, sf.origin[0], sf.origin[1], sf.resolution, cand,
-                 np.ascontiguousarray(p[thin(p, step)]), s2)
+                 np.ascontiguousarray(p[thin(p, 0.5 * step)]), s2)
     fy = yaw_step_for(p, fine_xy)
     out = [_fine(sf, p, c, fine_xy, fy, 0.5 * dyaw) for c in _distinct(cand, s2, keep, apart_xy, apart_yaw)]
     out.sort(key=lambda k: -k.score)
