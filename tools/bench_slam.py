@@ -370,6 +370,19 @@ def markdown(res: dict, meta: dict) -> str:
     return "\n".join(L)
 
 
+def with_other_sections(generated: str, existing: str) -> str:
+    """The generated page followed by the existing page's `## ` sections it does not generate (e.g. the KOS SLAM
+    section of tools/bench_kos_slam.py's runs), so a run of this bench keeps them."""
+    ours = {ln for ln in generated.splitlines() if ln.startswith("## ")}
+    kept, keep = [], False
+    for ln in existing.splitlines():
+        if ln.startswith("## "):
+            keep = ln not in ours
+        if keep:
+            kept.append(ln)
+    return generated.rstrip("\n") + ("\n\n" + "\n".join(kept).rstrip("\n") + "\n" if kept else "\n")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", nargs="+", default=list(LOGS), choices=list(LOGS))
@@ -404,7 +417,8 @@ def main() -> None:
             "loo_md": "slam_loo.md"}
     (a.out / "bench").mkdir(parents=True, exist_ok=True)
     (a.out / "bench" / "slam.json").write_text(json.dumps(json_safe({"meta": meta, "results": res}), indent=2))
-    (a.out / "benchmarks.md").write_text(markdown(res, meta))
+    md = a.out / "benchmarks.md"
+    md.write_text(with_other_sections(markdown(res, meta), md.read_text() if md.is_file() else ""))
     print(f"wrote {a.out / 'benchmarks.md'} and {a.out / 'bench' / 'slam.json'}")
 
 

@@ -46,3 +46,16 @@ def test_pipeline_bench_repeat_keeps_the_median_build_and_the_range(monkeypatch)
     assert r["metrics"]["timing"]["realtime_factor"] == 10.0
     assert r["repeats"]["realtime_factor"] == [9.0, 10.0, 12.5]
     assert r["repeats"]["cpu_per_log_s"] == pytest.approx([0.1] * 3)
+
+
+def test_bench_slam_keeps_the_sections_it_does_not_write():
+    """docs/benchmarks.md holds bench_slam's tables and the KOS SLAM section of bench_kos_slam's runs: rewriting
+    the first keeps the second, in place of nothing, and replaces bench_slam's own sections."""
+    from kosmap.tools.bench_slam import with_other_sections
+
+    generated = "# Benchmarks\n\n## Intel\nnew\n\n## Notes\nnew notes\n"
+    existing = "# Benchmarks\nold\n## Intel\nold\n## KOS SLAM with harsh wheel odometry\nrow 1\nrow 2\n"
+    page = with_other_sections(generated, existing)
+    assert page.startswith(generated.rstrip("\n")) and page.count("## Intel") == 1 and "old" not in page
+    assert page.endswith("## KOS SLAM with harsh wheel odometry\nrow 1\nrow 2\n")
+    assert with_other_sections(generated, "") == generated
