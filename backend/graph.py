@@ -32,7 +32,10 @@ class GraphConfig(StageConfig):
     """[graph]: nodes, the loop search and the robust kernel. Defaults: one set for every benchmark log."""
 
     section = "graph"
-    node_distance: float = param(0.2, lo=0.0, doc="a new graph node after this travel", unit="m")
+    node_spacing: str = param("derived", choices=("derived", "fixed"), doc="node spacing by the [odometry] keyframe rule "
+                              "with 4 cells and 1/18 of the field of view (backend/keyframes.py derived_spacing; a SICK 180°: "
+                              "0.2 m, 10°), or node_distance and node_angle_deg")
+    node_distance: float = param(0.2, lo=0.0, doc="a new graph node after this travel (node_spacing = \"fixed\")", unit="m")
     node_angle_deg: float = param(10.0, lo=0.0, doc="… or after this rotation", unit="deg")
     match_noise: str = param("hessian", choices=("fixed", "hessian"), doc="scan-matching factor σ: fixed below, or from the matches' Gauss–Newton information (+ the fixed part)")
     match_n_eff: float = param(100.0, lo=1.0, doc="hessian noise: at most this many returns count as independent")

@@ -28,6 +28,70 @@ class Keyframe:
     cov: np.ndarray | None = None  # (3, 3) covariance of the front-end match, map frame (None: unknown)
 
 
+# Keyframe spacing from the sensor and the measured odometry (docs/benchmarks.md, "How the settings follow"):
+# - turn: a keyframe after the scan has turned FOV_SHARE of its field of view (a SICK's 180°: 7.5°, so each keeps
+#   ≥ 96 % of the previous one's bearings; a 70° KOS scan: 2.9°), never more than 180° × FOV_SHARE (a wider scan
+#   keeps its overlap, but every wall's incidence, hence how its beams sample it, still changes by the full turn),
+#   never less than MIN_STEPS beam steps (a turn finer than the beams adds no new bearing);
+# - travel: a keyframe after KEY_CELLS cells of the fine likelihood field (5 cm: 0.15 m), so consecutive keyframes
+#   sample every wall at points a few cells apart; shortened to where the wheel odometry's own uncertainty over the
+#   step (its measured random walk and scale error, backend/odomnoise.py) reaches one cell of the coarse field (10 cm,
+#   where matching starts from the prediction), so a step the matcher holds to the odometry (a corridor) errs by no
+#   more than that field resolves. One fine cell is too tight: Intel's odometry, measured at up to 16 cm/√m and
+#   −13 % over a stretch, then shortened the steps to 9 cm there and measured 0.0177 m against 0.0175 m.
+# Graph nodes use the same rule with NODE_FOV_SHARE and NODE_CELLS (10°, 0.2 m for those lasers).
+FOV_SHARE = 1.0 / 24.0
+NODE_FOV_SHARE = 1.0 / 18.0
+KEY_CELLS = 3.0
+NODE_CELLS = 4.0
+MIN_STEPS = 3.0
+MAX_FOV = math.pi  # the turn bound stops growing beyond a 180° scan (the incidence argument above)
+MIN_FOV_POINTS = 20  # a scan with fewer returns does not measure the field of view
+
+
+@dataclass(frozen=True)
+class Spacing:
+    """Travel (m) and turn (rad) after which the next keyframe or node is made."""
+
+    distance: float
+    angle: float
+
+
+def derived_spacing(fov: float, angle_step: float, resolution: float, cells: float, fov_share: float,
+                    noise=None, odom_tolerance: float | None = None) -> Spacing:
+    """The rule above: `fov` and `angle_step` (rad) the scan's field of view and beam step, `resolution` the fine
+    field's cell (m), `noise` the odometry's measured OdomNoise (None: no odometry, or not yet measured) and
+    `odom_tolerance` the coarse field's cell (m; None: 2 × resolution) its σ over a step may reach."""
+    tol = 2.0 * resolution if odom_tolerance is None else odom_tolerance
+    angle = max(min(fov, MAX_FOV) * fov_share, MIN_STEPS * max(angle_step, 0.0))
+    distance = round(cells * resolution, 12)  # (3 × 0.05 is 0.15000000000000002 in floating point)
+    if noise is not None and noise.translation_sigma(distance) > tol:
+        # σ(d)² = σ_t²·d + (s·d)² = r²: the positive root of s²·d² + σ_t²·d − r² = 0
+        a, b, c = noise.scale_error ** 2, noise.trans_sigma ** 2, -tol ** 2
+        distance = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a) if a > 1e-12 else tol ** 2 / b
+    return Spacing(float(distance), float(angle))
+
+
+def scan_fov(points: np.ndarray) -> tuple[float, float]:
+    """The field of view and beam step a scan shows (rad): the span of its returns' bearings from base_link plus one
+    step (each beam covers one step, as for a declared sensor: n × angle_increment) and the median gap between
+    neighbouring bearings; (0, 0) for a scan too sparse to tell. A sensor mounted off base_link's origin shows a
+    narrower span (a SICK 0.1 m forward, walls 3–8 m away: 178°), hence a declared sensor first (Slam.set_sensor)."""
+    if len(points) < MIN_FOV_POINTS:
+        return 0.0, 0.0
+    b = np.sort(np.arctan2(points[:, 1], points[:, 0]))
+    gaps = np.diff(b)
+    wrap = 2 * math.pi - (b[-1] - b[0])  # the gap across ±180°
+    big = int(np.argmax(gaps))
+    if wrap >= gaps[big]:
+        span = float(b[-1] - b[0])
+    else:  # the scan looks backwards: its widest empty sector is inside (−π, π)
+        span = float(2 * math.pi - gaps[big])
+    pos = gaps[gaps > 1e-9]
+    step = float(np.median(pos)) if len(pos) else 0.0
+    return min(span + step, 2 * math.pi), step
+
+
 class KeyframeSelector:
     """Makes a scan a keyframe after `distance` metres or `angle` radians of front-end motion (or the first one)."""
 

@@ -19,7 +19,8 @@ from kosmap.backend.consistency import CELL_M, consistency, keep_points, loop_ch
 from kosmap.backend.consistency import warning as consistency_warning
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.imu import GyroBuffer
-from kosmap.backend.keyframes import Keyframe, KeyframeSelector, relative_covariance, scan_poses
+from kosmap.backend.keyframes import (KEY_CELLS, NODE_CELLS, FOV_SHARE, NODE_FOV_SHARE, Keyframe, KeyframeSelector,
+                                      derived_spacing, relative_covariance, scan_fov, scan_poses)
 from kosmap.backend.loops import LoopCloser, LoopConstraint
 from kosmap.backend.manhattan import ManhattanHeading
 from kosmap.backend.odomnoise import OdomNoiseEstimator, prior_from_factor_sigmas
@@ -122,6 +123,9 @@ class Slam:
         self.odom_noise = OdomNoiseEstimator(prior_from_factor_sigmas(g.odom_sigma_xy_per_m, g.odom_sigma_yaw_per_rad,
                                                                       math.radians(g.odom_sigma_yaw_deg), g.node_distance))
         self._fe_mark = (0, 0, 0)  # the front end's (matches, degenerate, recoveries) at the last keyframe
+        self._fov = (0.0, 0.0)  # the widest field of view and its beam step seen over the first FOV_SCANS scans (rad)
+        self._fov_scans = 0
+        self._spaced_with = None  # the OdomNoise estimate the spacing was last derived with
         o = self.ocfg
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
         self._measure = not held(o)
@@ -219,6 +223,8 @@ class Slam:
             # has moved by matching since, and would count the motion across the gap twice (10 s without odometry on
             # the synthetic ring: ATE 8.7 m)
             self.frontend.prev_odom = None
+        if self._fov_scans < FOV_SCANS:
+            self._measure_fov(points)
         res = self.frontend.update(stamp_ns, points, self._predict_with_gyro(stamp_ns, odom_pose))
         t1 = time.perf_counter()
         self.t["frontend"] += t1 - t0
@@ -256,6 +262,9 @@ class Slam:
             return
         self.odom_noise.add(se2.between(prev.local_pose, kf.local_pose), se2.between(prev.odom_pose, kf.odom_pose))
         noise = self.odom_noise.estimate()
+        if noise is not self._spaced_with:
+            self._spaced_with = noise  # a new fit: the spacing follows the measured odometry
+            self._respace()
         if noise.measured and self.gcfg.odom_noise == "measured":
             fe.odom_noise = noise
             if math.isfinite(noise.scale_error_sigma) and noise.scale_error_sigma > 0:
@@ -264,6 +273,40 @@ class Slam:
                 self.graph.scale_prior = (1.0 + noise.scale_error, noise.scale_error_sigma)
             # where the front end leans on the odometry (a corridor), its scale error is the estimate's drift
             self.loops.drift.odometry_rate = abs(noise.scale_error) * mark[1] / max(mark[0], 1)
+
+    def set_sensor(self, fov: float, angle_step: float) -> None:
+        """The scanner's own field of view and beam step (rad; a LaserScan's n beams × angle_increment and
+        angle_increment): the keyframe spacing is derived from them instead of from the scans' bearings."""
+        if fov > 0 and (fov, angle_step) != self._fov:
+            self._fov, self._fov_scans = (float(fov), float(angle_step)), FOV_SCANS
+            self._respace()
+
+    def _measure_fov(self, points: np.ndarray) -> None:
+        """The scan's field of view from the first FOV_SCANS scans with returns, and the spacing derived from it (a
+        scan of no declared sensor, e.g. the KOS scan, whose bearings are about base_link)."""
+        fov, step = scan_fov(np.asarray(points, dtype=float))
+        if fov <= 0:
+            return
+        self._fov_scans += 1
+        if fov > self._fov[0]:
+            self._fov = (fov, step)
+            self._respace()
+
+    def _respace(self) -> None:
+        """Keyframe and node spacing from the scan's field of view and the odometry's measured noise
+        (backend/keyframes.py derived_spacing), where [odometry] keyframe_spacing / [graph] node_spacing are derived."""
+        if self._fov[0] <= 0:
+            return
+        noise = self.odom_noise.estimate()
+        noise = noise if noise.measured else None
+        res = self.ocfg.resolution
+        if self.ocfg.keyframe_spacing == "derived" and hasattr(self.frontend, "key_distance"):
+            sp = derived_spacing(self._fov[0], self._fov[1], res, KEY_CELLS, FOV_SHARE, noise, self.ocfg.coarse_resolution)
+            self.frontend.key_distance, self.frontend.key_angle = sp.distance, sp.angle
+        if self.gcfg.node_spacing == "derived":
+            sp = derived_spacing(self._fov[0], self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
+                                 self.ocfg.coarse_resolution)
+            self.select.distance, self.select.angle = sp.distance, sp.angle
 
     def _odometry_sigmas(self, rel: np.ndarray) -> np.ndarray | None:
         """The odometry factor's σ: the configured ones, widened to the measured noise where the odometry is worse
@@ -396,6 +439,7 @@ _NO_POINTS = np.zeros((0, 2))
 _NO_POINTS.flags.writeable = False
 FE_GYRO_TOL = math.radians(1.0)  # the front end ignores a scan step's gyro yaw this far (or 25 %) from the wheels'
 STILL_YAW = math.radians(1.0)  # a node interval whose front-end rotation is below this did not turn (stuck-gyro check)
+FOV_SCANS = 50  # scans whose widest bearing span is taken as the sensor's field of view
 DEGENERATE_SHARE = 0.2  # a share of degenerate front-end matches that has the odometry scale calibrated while running
 MAX_MATCH_VAR = 1.0  # m² / rad²: a match factor alone never claims less than 1 m / 1 rad of information
 

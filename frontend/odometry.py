@@ -36,7 +36,10 @@ class OdometryConfig(StageConfig):
 
     section = "odometry"
     matcher: str = param("submap", choices=("submap", "kiss-icp"), doc="scan-to-submap matcher or kiss-icp")
-    keyframe_distance: float = param(0.15, lo=0.0, doc="insert a scan into the local submap after this travel", unit="m")
+    keyframe_spacing: str = param("derived", choices=("derived", "fixed"), doc="keyframe spacing from the scan's field "
+                                  "of view and the fine field's cells, shortened for noisy measured odometry (backend/keyframes.py "
+                                  "derived_spacing; a SICK 180°: 0.15 m, 7.5°), or keyframe_distance and keyframe_angle_deg")
+    keyframe_distance: float = param(0.15, lo=0.0, doc="insert a scan into the local submap after this travel (keyframe_spacing = \"fixed\")", unit="m")
     keyframe_angle_deg: float = param(7.5, lo=0.0, doc="… or after this rotation", unit="deg")
     voxel_size: float = param(0.1, lo=0.0, lo_open=True, doc="kiss-icp voxel size", unit="m")
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
@@ -331,6 +334,8 @@ class SubmapOdometry:
         self.prev_odom: np.ndarray | None = None
         self.velocity = np.zeros(3)  # last increment, for a constant-velocity guess without odometry
         self.last_key: np.ndarray | None = None
+        # keyframe spacing (m, rad): the config's, replaced by the SLAM core's derived one (backend/keyframes.py)
+        self.key_distance, self.key_angle = self.cfg.keyframe_distance, math.radians(self.cfg.keyframe_angle_deg)
         self.score_ema = 0.0  # running mean of the fine match score, for failure detection
         self.recoveries = 0
         self.matches = 0  # scans matched
@@ -362,8 +367,7 @@ class SubmapOdometry:
         if self.last_key is None:
             return True
         d = se2.between(self.last_key, pose)
-        return bool(math.hypot(d[0], d[1]) >= self.cfg.keyframe_distance
-                    or abs(d[2]) >= math.radians(self.cfg.keyframe_angle_deg))
+        return bool(math.hypot(d[0], d[1]) >= self.key_distance or abs(d[2]) >= self.key_angle)
 
     def _match(self, pts: np.ndarray, pred: np.ndarray, has_odom: bool) -> tuple[np.ndarray, float, np.ndarray]:
         """Correlative search around the prediction, then Gauss–Newton on the coarse and the fine field."""
@@ -505,6 +509,7 @@ class KissIcpOdometry:
         self.kiss = KissICP(kc)
         self.prev_odom: np.ndarray | None = None
         self.last_key: np.ndarray | None = None
+        self.key_distance, self.key_angle = self.cfg.keyframe_distance, math.radians(self.cfg.keyframe_angle_deg)
 
     def update(self, stamp_ns: int, points: np.ndarray, odom_pose: np.ndarray | None) -> FrontendResult:
         if not self.cfg.use_wheel_odometry:
@@ -527,8 +532,8 @@ class KissIcpOdometry:
         m = self.kiss.last_pose
         pose = np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
         key = self.last_key is None or bool(
-            math.hypot(*se2.between(self.last_key, pose)[:2]) >= self.cfg.keyframe_distance
-            or abs(se2.between(self.last_key, pose)[2]) >= math.radians(self.cfg.keyframe_angle_deg))
+            math.hypot(*se2.between(self.last_key, pose)[:2]) >= self.key_distance
+            or abs(se2.between(self.last_key, pose)[2]) >= self.key_angle)
         if key:
             self.last_key = pose.copy()
         return FrontendResult(pose, key, matched)

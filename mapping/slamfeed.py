@@ -120,6 +120,8 @@ class SlamFeed:
         """A laser scan mounted at `mount` (x, y, yaw in base_link): de-skewed when taken beam by beam and the
         config asks for it, else its end points as they are."""
         o = self.slam.ocfg
+        inc = abs(float(scan.angle_increment))
+        self.slam.set_sensor(inc * len(scan.ranges), inc)  # the keyframe spacing follows the scanner's FOV
         if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
             self.push(scan.stamp_ns, None, (scan, mount, o.min_range, o.max_range))
         else:
