@@ -33,8 +33,8 @@ class GraphConfig(StageConfig):
 
     section = "graph"
     node_spacing: str = param("derived", choices=("derived", "fixed"), doc="node spacing by the [odometry] keyframe rule "
-                              "with 4 cells and 1/18 of the field of view (backend/keyframes.py derived_spacing; a SICK 180°: "
-                              "0.2 m, 10°), or node_distance and node_angle_deg")
+                              "with 4 cells and 1/18 of a 180° scan's turn for every sensor (backend/keyframes.py derived_spacing: "
+                              "0.2 m, 10°; shorter travel for noisy measured odometry), or node_distance and node_angle_deg")
     node_distance: float = param(0.2, lo=0.0, doc="a new graph node after this travel (node_spacing = \"fixed\")", unit="m")
     node_angle_deg: float = param(10.0, lo=0.0, doc="… or after this rotation", unit="deg")
     match_noise: str = param("hessian", choices=("fixed", "hessian"), doc="scan-matching factor σ: fixed below, or from the matches' Gauss–Newton information (+ the fixed part)")

@@ -19,7 +19,7 @@ from kosmap.backend.consistency import CELL_M, consistency, keep_points, loop_ch
 from kosmap.backend.consistency import warning as consistency_warning
 from kosmap.backend.graph import GraphConfig, PoseGraph
 from kosmap.backend.imu import GyroBuffer
-from kosmap.backend.keyframes import (KEY_CELLS, NODE_CELLS, FOV_SHARE, NODE_FOV_SHARE, Keyframe, KeyframeSelector,
+from kosmap.backend.keyframes import (KEY_CELLS, MAX_FOV, NODE_CELLS, FOV_SHARE, NODE_FOV_SHARE, Keyframe, KeyframeSelector,
                                       derived_spacing, relative_covariance, scan_fov, scan_poses)
 from kosmap.backend.loops import LoopCloser, LoopConstraint
 from kosmap.backend.manhattan import ManhattanHeading
@@ -304,7 +304,8 @@ class Slam:
             sp = derived_spacing(self._fov[0], self._fov[1], res, KEY_CELLS, FOV_SHARE, noise, self.ocfg.coarse_resolution)
             self.frontend.key_distance, self.frontend.key_angle = sp.distance, sp.angle
         if self.gcfg.node_spacing == "derived":
-            sp = derived_spacing(self._fov[0], self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
+            # a node's turn is that of a 180° scan whatever the field of view (backend/keyframes.py NODE_FOV_SHARE)
+            sp = derived_spacing(MAX_FOV, self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
                                  self.ocfg.coarse_resolution)
             self.select.distance, self.select.angle = sp.distance, sp.angle
 

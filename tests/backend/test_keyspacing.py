@@ -90,7 +90,7 @@ def test_slam_core_applies_the_derived_spacing_unless_fixed():
     slam = Slam()
     slam.add_scan(0, narrow, np.zeros(3))
     assert math.degrees(slam.frontend.key_angle) == pytest.approx(70.0 / 24, rel=0.03)
-    assert math.degrees(slam.select.angle) == pytest.approx(70.0 / 18, rel=0.03)
+    assert math.degrees(slam.select.angle) == pytest.approx(10.0)  # a node's turn is a 180° scan's
     fixed = Slam(OdometryConfig(keyframe_spacing="fixed"), GraphConfig(node_spacing="fixed"))
     fixed.add_scan(0, narrow, np.zeros(3))
     assert math.degrees(fixed.frontend.key_angle) == pytest.approx(7.5)
