@@ -73,6 +73,23 @@ One configuration serves every log; these quantities are measured on the log as 
 - **Beam geometry and FOV**: the beams' angles come from the scan (`angle_min`, `angle_increment`; CARMEN FLASER:
   181/361 beams over 180°); a scan covering less than 144° of bearings is *narrow* and its loop query stacks the
   last 3 m of scans (`backend/loops.py`, `NARROW_COVERAGE`).
+- **Keyframe and node spacing** (`[odometry] keyframe_spacing`, `[graph] node_spacing` = `"derived"`,
+  `backend/keyframes.py`): a keyframe after the scan has turned 1/24 of its field of view (so it keeps ≥ 96 % of the
+  last keyframe's bearings), never coarser than for a 180° scan (a wider one keeps its overlap, but its incidence on
+  every wall still changes by the whole turn) nor finer than 3 beam steps; a node after 1/18 of a 180° scan (10°)
+  whatever the field of view (the keyframes already keep a narrow scan's overlap; on the simulated KOS office, nodes
+  at 1/18 of its 68° measured ATE 0.041 / 0.061 m on seeds 1 / 0 against 0.021 / 0.051 m, with 25 % more nodes,
+  while keyframes at 1/24 of it measured 0.021 / 0.051 m against 0.033 / 0.052 m at 7.5°, and on the corridor ring
+  with harsh wheels 0.047 m against 0.056 m); and after 3 cells of the
+  fine field in travel (a node after 4), so consecutive keyframes sample the walls a few cells apart, shortened to
+  where the wheel odometry's measured σ over the step (random walk and scale error, `backend/odomnoise.py`) reaches
+  the coarse field's 10 cm cell. The field of view is the laser's own (beams × `angle_increment`), or for a scan
+  without one (the KOS scan) the span of its returns' bearings over its first 50 scans. The SICK/Hokuyo 180° lasers
+  of the three tuning logs get exactly the spacing they were tuned with (0.15 m, 7.5°; nodes 0.2 m, 10°); a 240°
+  URG-04LX the same; the simulated office's 68° KOS scan 2.8° (nodes 10°). Odometry measured as noisy as Intel's worst stretch (16 cm/√m,
+  −13 % scale) keeps the tuned travel; against one fine cell instead of a coarse one, that stretch was spaced 9 cm and
+  Intel measured 0.0177 m against 0.0175 m. `"fixed"` takes `keyframe_distance`/`keyframe_angle_deg` and
+  `node_distance`/`node_angle_deg`.
 - **Loop search angular step**: from the query's farthest return d (Hess et al. 2016, eq. 7: the step that moves
   the farthest point by one cell, acos(1 − r²/2d²)), so a short-range sensor searches coarser angles.
 - **Which directions a scan fixes** (`[odometry] degenerate_ratio`): the scan's own surface normals (Σ n nᵀ over
@@ -151,8 +168,7 @@ One configuration serves every log; these quantities are measured on the log as 
   (`[graph] robust_kernel`) so one wrong loop cannot bend the map.
 
 Still constants (chosen on the tuning logs, and held in the leave-one-out below): the field resolutions (5/10 cm),
-the keyframe spacing (0.15 m, 7.5°) and the node spacing (0.2 m, 10°), not yet tied to the measured odometry noise
-or the sensor, the share of a loop's query that must lie on the submap's walls (0.6, from which the acceptance score
+the keyframe spacing rule's shares (1/24 and 1/18 of the field of view, 3 and 4 cells), the share of a loop's query that must lie on the submap's walls (0.6, from which the acceptance score
 follows), the loop candidates' base reach (4 m round a submap's nodes, about half a 40-node submap's 8 m of travel;
 grown by 3σ of the pose uncertainty since the last loop), the submaps a loop skips (`loop_min_separation` 2)."""
 
