@@ -376,8 +376,9 @@ def _track_holds(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, track: np.nd
     """Whether the track's pose still holds though the filter's mode lies far from it: its readings do not pass
     through the map's walls (lost_through at through_tol, the kidnapping test). The particles spread along a corridor
     or over a look-alike place in several modes, and the heaviest one can jump between them on one scan's noise;
-    the track follows it only when its own readings refute it."""
-    return mcl.through_fraction(f, track, pts, cfg.through_tol) <= cfg.lost_through
+    the track follows it only when its own readings refute it. With the walls test off (lost_through = 1) nothing
+    refutes it and the track follows the mode."""
+    return cfg.lost_through < 1.0 and mcl.through_fraction(f, track, pts, cfg.through_tol) <= cfg.lost_through
 
 
 def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
