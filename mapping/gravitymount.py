@@ -95,6 +95,7 @@ def resolve_gravity(path: Path, cfg, frames: int = SAMPLE_FRAMES) -> GravityMoun
         for item in src.frames:
             if item.frame_id not in seen:
                 seen[item.frame_id] = (item.mount, GravityTracker(up=gravity_up(item.mount)), [], [])
+                seen[item.frame_id][1].floor.step = cfg.fspf.ground_max_height  # as mapping/planes/classes.py
             _, tracker, ups, heights = seen[item.frame_id]
             planes = filter_planes(item.depth, item.camera, keep_all, cfg.depth, item.mount,
                                    seed=frame_seed(cfg.fspf, item.index))
