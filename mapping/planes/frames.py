@@ -119,6 +119,8 @@ def log_frames(path: Path, cfg, ov: Override, every: int, limit: int | None,
         ov = Override()
     elif pattern:
         raise KosmapError(f"--glob {pattern} applies to a folder of depth images; {path} is a log")
+    elif ov.fps is not None:
+        raise KosmapError(f"--fps {ov.fps:g} applies to a folder of depth images; {path} is a log, stamped by itself")
     else:
         log = open_log(path, cfg.topics.on_damage)
     info = log.info()

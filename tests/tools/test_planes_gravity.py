@@ -186,6 +186,9 @@ def test_a_folder_without_times_plays_at_fps(capsys, tmp_path):
     tracked = [(i, float(r["floor_m"])) for i, r in enumerate(at2) if r["floor_m"]]
     assert len(tracked) >= 3  # the floor confirmed and tracked at the true rate: the camera's height within 2 cm
     assert all(abs(h - (1.2 + 0.2 * np.sin(2 * i))) <= 0.02 for i, h in tracked), tracked
+    (tmp_path / "a.mcap").write_bytes(b"")  # a log: refused before it is read
+    code, _, err = run(capsys, "planes", tmp_path / "a.mcap", "--out", tmp_path / "log", "--fps", "2")
+    assert code == 2 and "--fps 2 applies to a folder of depth images" in err, err
     for bad in ("0", "-5", "nan"):
         code, _, err = run(capsys, "planes", folder, "--out", tmp_path / f"bad{bad}", "--fps", bad)
         assert code == 2 and "is no frame rate" in err and len(err.strip().splitlines()) == 1, err

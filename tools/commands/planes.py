@@ -49,6 +49,9 @@ def _source(path: Path, cfg, ov, every: int, limit: int | None, pattern: str | N
     folders = detect(path) if path.is_dir() and not pattern else []
     if not folders:
         return log_frames(path, cfg, ov, every, limit, pattern)
+    if ov.fps is not None:
+        raise KosmapError(f"--fps {ov.fps:g} applies to a folder of depth images; {path} holds datasets stamped by "
+                          f"themselves")
     total = sum(len(_dataset_names(f, every, limit)) for f in folders)
     samples = ((j * every, s) for f in folders for j, s in enumerate(iter_dataset(f, limit, every)))
     return dataset_frames(samples, total, cfg, ov)
