@@ -72,8 +72,8 @@ def test_a_robot_coming_back_with_a_drifted_estimate_closes_the_loop_at_the_righ
     cfg = GraphConfig()
     lc, found, true, (radius, window) = _come_back(walls, 40.0, 46.0, 1.5, cfg)
     nearest = 47.5 - 39.8  # from the estimate to the first pass's last node
-    old_reach = cfg.loop_search_radius + window - cfg.loop_linear_window  # 4 m + the window's growth
-    assert old_reach < nearest < radius, (old_reach, nearest, radius)
+    centre_reach = cfg.loop_search_radius + window - cfg.loop_linear_window  # 4 m + the window's growth
+    assert centre_reach < nearest < radius, (centre_reach, nearest, radius)
     assert found, lc.stats
     for f in found:
         p = se2.compose(np.array([2.0 + 0.2 * f.a, 0.1, 0.0]), f.rel)
@@ -86,6 +86,8 @@ def test_repeated_doors_give_no_loop_at_a_look_alike():
     doors = list(np.arange(4.0, 58.0, 3.0))
     walls = _walls(doors_top=doors, doors_bottom=doors, length=60.0)
     lc, found, true, _ = _come_back(walls, 40.0, 46.0, 1.5, GraphConfig())
+    assert lc.stats.searches > 0, lc.stats  # the submaps with the look-alikes were searched
+    assert found or lc.stats.rejected_ambiguous + lc.stats.rejected_edge > 0, lc.stats  # ... and refused as such
     for f in found:
         p = se2.compose(np.array([2.0 + 0.2 * f.a, 0.1, 0.0]), f.rel)
         assert abs(p[0] - true[0]) < 0.2, (p, true, lc.stats)

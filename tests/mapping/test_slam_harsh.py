@@ -51,7 +51,7 @@ def test_long_corridors_with_a_sick_and_harsh_odometry(tmp_path, seed, wheels):
     true_scale = simulation_truth(log)["truth"]["odometry"]["distance_scale"]
     # measured: seed 9 ATE 0.081 m (max 0.148), scale 1.0181 against 1.024 (0.098 m, scale 1.0137 with the degenerate
     # matches' geometric share and the prior at 1); short wheels, seed 3: 0.038 m (max 0.074), scale 0.9784 against
-    # 0.9775 (0.109 m, 0.9826 before). The wheels alone 10.9 m and 20.0 m
+    # 0.9775 (0.109 m, 0.9826 with the prior at 1). The wheels alone 10.9 m and 20.0 m
     assert m["ate"]["rmse"] <= 0.10, m["ate"]
     assert m["ate"]["max"] <= 0.3, m["ate"]
     assert m["ate_odometry"]["rmse"] > 2.0, m["ate_odometry"]
