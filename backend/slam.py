@@ -59,6 +59,7 @@ class SlamResult:
     stretches: dict = field(default_factory=dict)  # where the run had little to go by (backend/slamhealth.py)
     consistency: dict = field(default_factory=dict)  # does the map agree with itself (backend/consistency.py)
     odom_noise: dict = field(default_factory=dict)  # the wheel odometry's noise measured while running (backend/odomnoise.py)
+    spacing: dict = field(default_factory=dict)  # the keyframe and node spacing the run ended with (Slam.spacing)
 
     @property
     def stamps(self) -> np.ndarray:
@@ -298,7 +299,7 @@ class Slam:
         if self._fov[0] <= 0:
             return
         noise = self.odom_noise.estimate()
-        noise = noise if noise.measured else None
+        noise = noise if noise.measured and self.gcfg.odom_noise == "measured" else None  # "fixed": as configured
         res = self.ocfg.resolution
         if self.ocfg.keyframe_spacing == "derived" and hasattr(self.frontend, "key_distance"):
             sp = derived_spacing(self._fov[0], self._fov[1], res, KEY_CELLS, FOV_SHARE, noise, self.ocfg.coarse_resolution)
@@ -308,6 +309,16 @@ class Slam:
             sp = derived_spacing(MAX_FOV, self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
                                  self.ocfg.coarse_resolution)
             self.select.distance, self.select.angle = sp.distance, sp.angle
+
+    def spacing(self) -> dict:
+        """The keyframe and node spacing in force, where each comes from ("derived" or "fixed"), and the scan's field
+        of view it was derived from (metrics.json: the configured distances and angles do not apply when derived)."""
+        key = (getattr(self.frontend, "key_distance", self.ocfg.keyframe_distance),
+               math.degrees(getattr(self.frontend, "key_angle", math.radians(self.ocfg.keyframe_angle_deg))))
+        return {"keyframe": self.ocfg.keyframe_spacing, "keyframe_distance_m": float(key[0]),
+                "keyframe_angle_deg": float(key[1]), "node": self.gcfg.node_spacing,
+                "node_distance_m": float(self.select.distance), "node_angle_deg": math.degrees(self.select.angle),
+                "fov_deg": math.degrees(self._fov[0]) if self._fov[0] > 0 else None}
 
     def _odometry_sigmas(self, rel: np.ndarray) -> np.ndarray | None:
         """The odometry factor's σ: the configured ones, widened to the measured noise where the odometry is worse
@@ -432,7 +443,7 @@ class Slam:
                           warnings=list(self.imu_warnings) + ([self.heading.stats.disabled]
                                                               if self.heading is not None and self.heading.stats.disabled else [])
                           + health, stretches=st.as_dict(int(stamps[0])), consistency=con.as_dict(),
-                          odom_noise=self.odom_noise.estimate(refit=True).as_dict())
+                          odom_noise=self.odom_noise.estimate(refit=True).as_dict(), spacing=self.spacing())
 
 
 _NAN3 = (math.nan, math.nan, math.nan)

@@ -308,7 +308,8 @@ def summary(result: SlamResult) -> dict:
             "odometry_scale": result.graph.odom_scale if "odom" in kinds and result.graph.cfg.odom_scale == "estimate" else None,
             "gyro_bias_deg_s": (math.degrees(result.graph.gyro_bias_mean) if "gyro" in kinds and result.graph.cfg.gyro_bias == "estimate"
                                 else None),
-            "odometry_noise": result.odom_noise, "imu": result.imu_stats, "warnings": list(result.warnings)}
+            "odometry_noise": result.odom_noise, "spacing": result.spacing, "imu": result.imu_stats,
+            "warnings": list(result.warnings)}
 
 
 def save_run(result: SlamResult, out: str | Path, cfg=None, metrics: dict | None = None, grid=None) -> dict[str, Path]:

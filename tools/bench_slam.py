@@ -89,7 +89,7 @@ One configuration serves every log; these quantities are measured on the log as 
   URG-04LX the same; the simulated office's 68° KOS scan 2.8° (nodes 10°). Odometry measured as noisy as Intel's worst stretch (16 cm/√m,
   −13 % scale) keeps the tuned travel; against one fine cell instead of a coarse one, that stretch was spaced 9 cm and
   Intel measured 0.0177 m against 0.0175 m. `"fixed"` takes `keyframe_distance`/`keyframe_angle_deg` and
-  `node_distance`/`node_angle_deg`.
+  `node_distance`/`node_angle_deg`; metrics.json's `spacing` says which spacing a run ended with.
 - **Loop search angular step**: from the query's farthest return d (Hess et al. 2016, eq. 7: the step that moves
   the farthest point by one cell, acos(1 − r²/2d²)), so a short-range sensor searches coarser angles.
 - **Which directions a scan fixes** (`[odometry] degenerate_ratio`): the scan's own surface normals (Σ n nᵀ over
@@ -126,11 +126,11 @@ One configuration serves every log; these quantities are measured on the log as 
   factors alone left it at 1.015 against the true 1.024: the 42 m corridors came out 0.6–1 % long). Laser SLAM on the
   simulated corridor ring (SICK-like 180°, 181 beams; wheels 2 % and 2.8 % long, 0.3°/m heading bias; simulator,
   `kosmap simulate` worlds/corridors.yaml): ATE 0.049 / 0.052 / 0.031 m on seeds 0, 1, 2 (the seeds the rule was
-  found on; 0.119 / 0.122 / 0.078 m before), 0.033–0.076 m on seeds 3–9 (held out; seed 9 in
+  found on; 0.119 / 0.122 / 0.078 m with the scale's prior at 1), 0.033–0.076 m on seeds 3–9 (held out; seed 9 in
   tests/mapping/test_slam_harsh.py: 0.076 m); wheels reading short (−1.5 %, −3 %, −0.3°/m), seed 3: 0.039 m
-  (0.109 m before). The harsh office, seeds 0–2: 0.022 / 0.032 / 0.029 m (0.027 / 0.016 / 0.027 m before). With
-  the wide default laser and wheels 3 % / 2 % the corridor ring gives 0.101 m (0.093 m before): not every world
-  gains.
+  (0.109 m with the prior at 1). The harsh office, seeds 0–2: 0.022 / 0.032 / 0.029 m (0.027 / 0.016 / 0.027 m with
+  the prior at 1). With the wide default laser and wheels 3 % / 2 % the corridor ring gives 0.101 m (0.093 m with the
+  prior at 1): not every world gains.
 - **Loop search window**: 3σ of the drift accumulated since the last accepted loop, σ = rate × travel, between 1 m
   and 3 m; the rate starts at 1 %/m (or the odometry's measured drift where the front end leans on it, above) and
   follows the corrections accepted loops measure (correction ÷ travel since the previous loop, over ≥ 10 m). A robot
@@ -147,10 +147,10 @@ One configuration serves every log; these quantities are measured on the log as 
   put it at places more than a distinct peak (0.3 m) apart, all of them are rejected (a submap that covers only part
   of what the query sees scores a slid look-alike above the true place: doors every 3 m, 0.991 at the look-alike
   against 0.957 at the true place in the next submap; tests/backend/test_loop_radius.py). Unscored real logs: Mines
-  exp2 now closes a loop (revisits 0.164 / 0.198 m off against 0.194 / 0.223 m); Mines exp1 searches 6 times and
-  Duke 3 times, all rejected on score or inliers (exp1's return to its start is 21 m of travel later, within the
-  two submaps `loop_min_separation` skips); laserazos 31 loops instead of 19 (0.013 / 0.041 m against 0.012 /
-  0.044 m).
+  exp2 closes a loop (revisits 0.164 / 0.198 m off; 0.194 / 0.223 m and no loop with 4 m round the submap's centre);
+  Mines exp1 searches 6 times and Duke 3 times, all rejected on score or inliers (exp1's return to its start is 21 m
+  of travel later, within the two submaps `loop_min_separation` skips); laserazos closes 31 loops (0.013 / 0.041 m;
+  19 loops and 0.012 / 0.044 m with the centre rule).
 - **Loop acceptance score** (`[graph] loop_score = "derived"`): the branch-and-bound score is the mean over the query's
   points of exp(−d²/2σ²), d the distance to the nearest submap point, σ the search field's 0.1 m. A point that does
   lie on a mapped wall is expected to score σ/√(σ² + n² + r²/12), n the query scan's own scatter about its lines

@@ -95,6 +95,11 @@ def test_slam_core_applies_the_derived_spacing_unless_fixed():
     fixed.add_scan(0, narrow, np.zeros(3))
     assert math.degrees(fixed.frontend.key_angle) == pytest.approx(7.5)
     assert math.degrees(fixed.select.angle) == pytest.approx(10.0)
+    said = slam.spacing()  # what metrics.json reports: the spacing in force, not the configured keys
+    assert said["keyframe"] == said["node"] == "derived" and said["fov_deg"] == pytest.approx(70.0, rel=0.03)
+    assert said["keyframe_angle_deg"] == pytest.approx(70.0 / 24, rel=0.03) and said["node_angle_deg"] == pytest.approx(10.0)
+    assert said["keyframe_distance_m"] == pytest.approx(0.15) and said["node_distance_m"] == pytest.approx(0.2)
+    assert fixed.spacing()["keyframe"] == "fixed" and fixed.spacing()["keyframe_angle_deg"] == pytest.approx(7.5)
 
 
 def test_a_declared_sensor_sets_the_spacing_over_the_scans_bearings():
