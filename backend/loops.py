@@ -174,18 +174,16 @@ class DriftModel:
         self.cfg = cfg
         self.rate = float(cfg.loop_drift_per_m)
         self.travel = 0.0  # metres of front-end travel since the last accepted loop
-        self._last: np.ndarray | None = None
         self._worst = 0.0  # largest correction among this search's accepted loops
         self.odometry_rate = 0.0  # drift per metre the odometry puts in where the front end leans on it (set by Slam)
         self._pose: np.ndarray | None = None  # front-end pose of the last node
         self.cov = self._loop_cov()  # the current node's pose uncertainty since the last accepted loop (its frame)
 
     def travel_to(self, pose: np.ndarray) -> None:
-        if self._last is not None:
-            self.travel += math.hypot(pose[0] - self._last[0], pose[1] - self._last[1])
-        self._last = pose[:2].copy()
         if self._pose is not None:
-            self.cov = propagate(self.cov, se2.between(self._pose, pose), self._step_sigmas(se2.between(self._pose, pose)))
+            self.travel += math.hypot(pose[0] - self._pose[0], pose[1] - self._pose[1])
+            rel = se2.between(self._pose, pose)
+            self.cov = propagate(self.cov, rel, self._step_sigmas(rel))
         self._pose = np.asarray(pose, dtype=float).copy()
 
     def _step_sigmas(self, rel: np.ndarray) -> np.ndarray:
@@ -219,6 +217,14 @@ class DriftModel:
 
     def corrected(self, pose: np.ndarray, guess: np.ndarray) -> None:
         self._worst = max(self._worst, math.hypot(pose[0] - guess[0], pose[1] - guess[1]))
+
+    def worst(self) -> float:
+        """The largest correction among the accepted loops since the last reset (the search's so far)."""
+        return self._worst
+
+    def forget_corrections(self, worst: float) -> None:
+        """Back to `worst` (a value of `worst()`): the corrections of loops rejected together are not drift."""
+        self._worst = worst
 
     def reset(self) -> None:
         """A loop was accepted: the rate moves towards what it measured (over at least 10 m of travel, so that a
@@ -398,7 +404,7 @@ class LoopCloser:
         """Verify every candidate submap for this node; return the accepted constraints (not yet in the graph)."""
         t0 = time.perf_counter()
         found: list[LoopConstraint] = []
-        worst = self.drift._worst
+        worst = self.drift.worst()
         cands = self.candidates(node, graph)
         pts = self.query(node) if cands else None
         if pts is None or len(pts) < 10:
@@ -428,7 +434,7 @@ class LoopCloser:
         if found:
             self.drift.reset()
         else:
-            self.drift._worst = worst  # the corrections of loops rejected together are not drift
+            self.drift.forget_corrections(worst)
         self.stats.drift_per_m = self.drift.rate
         self.loops.extend(found)
         self.stats.seconds += time.perf_counter() - t0

@@ -266,7 +266,8 @@ class Slam:
         if noise is not self._spaced_with:
             self._spaced_with = noise  # a new fit: the spacing follows the measured odometry
             self._respace()
-        if noise.measured and self.gcfg.odom_noise == "measured":
+        noise = self._measured_noise()
+        if noise is not None:
             fe.odom_noise = noise
             if math.isfinite(noise.scale_error_sigma) and noise.scale_error_sigma > 0:
                 # the graph's scale variable is otherwise seen only through the loose odometry factors and leans on
@@ -298,10 +299,9 @@ class Slam:
         (backend/keyframes.py derived_spacing), where [odometry] keyframe_spacing / [graph] node_spacing are derived."""
         if self._fov[0] <= 0:
             return
-        noise = self.odom_noise.estimate()
-        noise = noise if noise.measured and self.gcfg.odom_noise == "measured" else None  # "fixed": as configured
+        noise = self._measured_noise()
         res = self.ocfg.resolution
-        if self.ocfg.keyframe_spacing == "derived" and hasattr(self.frontend, "key_distance"):
+        if self.ocfg.keyframe_spacing == "derived":
             sp = derived_spacing(self._fov[0], self._fov[1], res, KEY_CELLS, FOV_SHARE, noise, self.ocfg.coarse_resolution)
             self.frontend.key_distance, self.frontend.key_angle = sp.distance, sp.angle
         if self.gcfg.node_spacing == "derived":
@@ -313,10 +313,9 @@ class Slam:
     def spacing(self) -> dict:
         """The keyframe and node spacing in force, where each comes from ("derived" or "fixed"), and the scan's field
         of view it was derived from (metrics.json: the configured distances and angles do not apply when derived)."""
-        key = (getattr(self.frontend, "key_distance", self.ocfg.keyframe_distance),
-               math.degrees(getattr(self.frontend, "key_angle", math.radians(self.ocfg.keyframe_angle_deg))))
-        return {"keyframe": self.ocfg.keyframe_spacing, "keyframe_distance_m": float(key[0]),
-                "keyframe_angle_deg": float(key[1]), "node": self.gcfg.node_spacing,
+        fe = self.frontend
+        return {"keyframe": self.ocfg.keyframe_spacing, "keyframe_distance_m": float(fe.key_distance),
+                "keyframe_angle_deg": math.degrees(fe.key_angle), "node": self.gcfg.node_spacing,
                 "node_distance_m": float(self.select.distance), "node_angle_deg": math.degrees(self.select.angle),
                 "fov_deg": math.degrees(self._fov[0]) if self._fov[0] > 0 else None}
 
@@ -325,10 +324,14 @@ class Slam:
         (None: as configured). Never narrowed: the measured σ of one factor cannot say that a scale or heading error
         adds up linearly over consecutive factors, and the match factors' fixed σ are conservative; at the measured σ
         the graph followed the odometry (simulated office, 2.4 % scale and 1.2°/m heading drift: ATE 0.027 → 1.8 m)."""
+        noise = self._measured_noise()
+        return None if noise is None else np.maximum(self.graph.odometry_sigmas(rel), noise.factor_sigmas(rel))
+
+    def _measured_noise(self):
+        """The odometry's noise as measured against the scans (backend/odomnoise.py), where it is measured and
+        `[graph] odom_noise = "measured"`; None: the configured σ apply."""
         noise = self.odom_noise.estimate()
-        if not noise.measured or self.gcfg.odom_noise != "measured":
-            return None
-        return np.maximum(self.graph.odometry_sigmas(rel), noise.factor_sigmas(rel))
+        return noise if noise.measured and self.gcfg.odom_noise == "measured" else None
 
     def _add_keyframe(self, kf: Keyframe) -> None:
         g = self.graph
