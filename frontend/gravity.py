@@ -184,8 +184,8 @@ class FloorTracker:
         keep = np.abs(self.levels) >= self.step
         self.levels, self.weights = self.levels[keep], self.weights[keep]
         self.sightings, self.spread = self.sightings[keep], self.spread[keep]
-        self.height, self.support = float(d[j]), 1  # its first sighting: the old floor stood on it, none below
-        self.learn(self.height - d, w, np.hypot(sigma, sigma[j]))
+        self.floor_at(j, d, w, sigma)
+        self.support = 1  # its first sighting: the old floor stood on it, none below
         return True
 
     def confirm(self, d: np.ndarray, deepest: float, frames: int) -> None:

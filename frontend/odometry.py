@@ -531,9 +531,8 @@ class KissIcpOdometry:
             self.kiss.last_pose = self.kiss.last_pose @ self.kiss.last_delta
         m = self.kiss.last_pose
         pose = np.array([m[0, 3], m[1, 3], math.atan2(m[1, 0], m[0, 0])])
-        key = self.last_key is None or bool(
-            math.hypot(*se2.between(self.last_key, pose)[:2]) >= self.key_distance
-            or abs(se2.between(self.last_key, pose)[2]) >= self.key_angle)
+        d = None if self.last_key is None else se2.between(self.last_key, pose)
+        key = d is None or bool(math.hypot(d[0], d[1]) >= self.key_distance or abs(d[2]) >= self.key_angle)
         if key:
             self.last_key = pose.copy()
         return FrontendResult(pose, key, matched)

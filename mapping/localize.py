@@ -170,11 +170,11 @@ class _Filter:
             return
         extra = seed_round(v.poses[alive], np.full(int(alive.sum()), c.min_particles), c.search_fine,
                            math.radians(2.0), self.rng)
-        w = np.repeat(v.prob[alive] / c.min_particles, c.min_particles)
         if self.found:
             self.parts = np.concatenate((self.parts, extra))
             self.w = np.full(len(self.parts), 1.0 / len(self.parts))
         else:  # the first pose is the search's to claim: the set is its places, weighted by their posterior
+            w = np.repeat(v.prob[alive] / c.min_particles, c.min_particles)
             self.parts, self.w = extra, w / w.sum()
 
     def move(self, u0: np.ndarray, u1: np.ndarray) -> None:
