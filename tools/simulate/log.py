@@ -24,7 +24,7 @@ import numpy as np
 from kosmap.frontend.logs.writer import McapWriter
 from kosmap.frontend.records import DepthFrame, Imu, Odometry, Scan, Transform, Transforms
 from kosmap.tools.simulate.config import SimConfig
-from kosmap.tools.simulate.imu import imu_stream, imu_truth
+from kosmap.tools.simulate.imu import ImuStream, imu_stream, imu_truth
 from kosmap.tools.simulate.motion import Trajectory, check_path, odometry, plan, wrap
 from kosmap.tools.simulate.render import pose_matrix, render_depth_geometry, render_laser_geometry
 from kosmap.tools.simulate.sensors import apply_laser_noise, depth_noise_mm
@@ -80,6 +80,117 @@ def _stamps(rate: float, phase: str, duration: float) -> np.ndarray:
     return t[t <= duration + 1e-9]
 
 
+def _streams(cfg: SimConfig, duration: float, imu: ImuStream | None) -> dict[int, np.ndarray]:
+    """Each stream's message times (s since the start); the IMU's without the samples inside its gaps."""
+    streams = {_DEPTH: _stamps(cfg.depth_rate, "depth", duration), _ODOM: _stamps(cfg.odom_rate, "odom", duration),
+               _GT: _stamps(cfg.gt_rate, "gt", duration)}
+    if cfg.laser:
+        streams[_SCAN] = _stamps(cfg.laser_rate, "scan", duration)
+    if imu is not None:
+        streams[_IMU] = imu.t[imu.keep]
+    return streams
+
+
+def _events(streams: dict[int, np.ndarray]) -> list[tuple[int, int]]:
+    """(stream, index) of every message in time order; ties by stream, then index."""
+    ev_t = np.concatenate([np.round(streams[k] * 1e9).astype(np.int64) for k in streams])
+    ev_kind = np.concatenate([np.full(len(streams[k]), k) for k in streams])
+    ev_idx = np.concatenate([np.arange(len(streams[k])) for k in streams])
+    order = np.lexsort((ev_idx, ev_kind, ev_t))
+    return list(zip(ev_kind[order].tolist(), ev_idx[order].tolist()))
+
+
+class _Sensors:
+    """Renders and writes one message of a stream at a time, counting messages and timing the stages."""
+
+    def __init__(self, world: World, cfg: SimConfig, traj: Trajectory, writer: McapWriter,
+                 odom_poses: np.ndarray, gt_poses: np.ndarray, imu: ImuStream | None):
+        self.world, self.cfg, self.traj, self.writer = world, cfg, traj, writer
+        self.odom_poses, self.gt_poses, self.imu = odom_poses, gt_poses, imu
+        self.counts: dict[str, int] = {}
+        self.timing = {"render_depth": 0.0, "depth_noise": 0.0, "render_laser": 0.0, "write": 0.0}
+        self.cameras = cfg.cameras()
+        self.models = [cfg.camera_model(m.child) for _, m in self.cameras]
+        self.depth_noise = cfg.depth_noise()
+        self.depth_rngs = [np.random.default_rng([cfg.seed, 1, i]) for i in range(len(self.cameras))]
+        self.laser_mount, self.laser_model, self.laser_noise = cfg.laser_mount(), cfg.laser_model(), cfg.laser_noise()
+        self.laser_rng = np.random.default_rng([cfg.seed, 2])
+        self.beam_dt = self.laser_model.scan_time * self.laser_model.angle_increment / (2 * math.pi)
+        imu_noise = cfg.imu_noise()
+        self.imu_cov = (np.diag([imu_noise.gyro_sigma ** 2] * 3).reshape(9),
+                        np.diag([imu_noise.accel_sigma ** 2] * 3).reshape(9),
+                        np.array([-1.0] + [0.0] * 8))  # orientation not provided (a raw MEMS stream)
+        self.imu_rows = np.flatnonzero(imu.keep) if imu is not None else None
+        # the IMU on the front camera: the base's rates and specific force turned into its optical frame (the lever
+        # arm's centripetal term, ω²·r ≈ 0.01 m/s² for a camera 0.1 m off the turning axis, is left out)
+        self.imu_rot = self.cameras[0][1].matrix()[:3, :3].T if cfg.imu_on_camera else None
+        self.imu_frame = self.cameras[0][1].child if cfg.imu_on_camera else cfg.imu_frame
+
+    def put(self, rec, topic: str) -> None:
+        t = time.thread_time()
+        self.writer.write(rec, topic)
+        self.timing["write"] += time.thread_time() - t
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def mounts(self, t0_ns: int) -> None:
+        """/tf_static with every sensor's mount (if the config asks for it)."""
+        cfg = self.cfg
+        mounts = tuple(dataclasses.replace(m, stamp_ns=t0_ns) for _, m in self.cameras)
+        if cfg.laser:
+            mounts += (dataclasses.replace(self.laser_mount, stamp_ns=t0_ns),)
+        if cfg.imu and not cfg.imu_on_camera:
+            mounts += (dataclasses.replace(Transform.identity("base_link", cfg.imu_frame), stamp_ns=t0_ns),)
+        if cfg.tf_static:
+            self.put(Transforms(t0_ns, mounts, True, "/tf_static"), "/tf_static")
+
+    def emit(self, kind: int, i: int, t: float, stamp: int) -> None:
+        cfg = self.cfg
+        if kind == _IMU:
+            k = self.imu_rows[i]
+            gyro, accel = self.imu.gyro[k], self.imu.accel[k]
+            if self.imu_rot is not None:
+                gyro, accel = self.imu_rot @ gyro, self.imu_rot @ accel
+            g_cov, a_cov, o_cov = self.imu_cov
+            self.put(Imu(stamp, gyro, accel, np.array([0.0, 0.0, 0.0, 1.0]), o_cov, g_cov, a_cov, self.imu_frame),
+                     cfg.imu_topic)
+        elif kind == _GT:
+            x, y, yaw = self.gt_poses[i]
+            self.put(Odometry(stamp, float(x), float(y), float(yaw), "map", "base_link"), cfg.gt_topic)
+        elif kind == _ODOM:
+            x, y, yaw = self.odom_poses[i]
+            self.put(Odometry(stamp, float(x), float(y), float(yaw), "odom", "base_link"), cfg.odom_topic)
+        elif kind == _SCAN:
+            self.scan(t, stamp)
+        else:
+            self.depth(t, stamp)
+
+    def scan(self, t: float, stamp: int) -> None:
+        """One laser scan, each beam cast from the pose at its own time."""
+        model, tt = self.laser_model, time.thread_time()
+        beam_t = t + np.arange(model.beams) * self.beam_dt if self.beam_dt > 0 else np.array([t])
+        r, _, cs = render_laser_geometry(self.world, self.traj.pose(beam_t), self.laser_mount, model)
+        ranges = apply_laser_noise(r, cs, self.laser_noise, model.range_min, model.range_max, self.laser_rng)
+        self.timing["render_laser"] += time.thread_time() - tt
+        self.put(Scan(stamp, ranges, model.angle_min, model.angle_increment, model.range_min, model.range_max,
+                      self.laser_mount.child, time_increment=self.beam_dt, scan_time=1.0 / self.cfg.laser_rate),
+                 self.cfg.scan_topic)
+
+    def depth(self, t: float, stamp: int) -> None:
+        """One depth frame (and its CameraInfo, and optionally its surface ids) per camera."""
+        pose = self.traj.pose(t)[0]
+        for (cam_ns, mount), model, rng in zip(self.cameras, self.models, self.depth_rngs):
+            tt = time.thread_time()
+            z, sid, cs = render_depth_geometry(self.world, pose, mount, model, self.depth_noise.max_range)
+            t1 = time.thread_time()
+            _, sid, mm = depth_noise_mm(z, sid, cs, self.depth_noise, rng)
+            self.timing["render_depth"] += t1 - tt
+            self.timing["depth_noise"] += time.thread_time() - t1
+            self.put(dataclasses.replace(model, stamp_ns=stamp), f"{cam_ns}/camera_info")
+            self.put(DepthFrame(stamp, np.ascontiguousarray(mm), "16UC1", mount.child), f"{cam_ns}/image_depth_rect")
+            if self.cfg.surface_ids:
+                self.put(DepthFrame(stamp, np.ascontiguousarray(sid), "16UC1", mount.child), f"{cam_ns}/surface_id")
+
+
 def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSpec | None = None,
              progress: Callable[[float, float], None] | None = None) -> dict:
     """Simulate the robot on `path` (default: the world's own) and write an MCAP log; returns a summary.
@@ -94,124 +205,53 @@ def simulate(world: World, config: SimConfig, out_path: str | Path, path: PathSp
     duration = cfg.duration if cfg.duration > 0 else traj.duration
     check_sensors(world, cfg, traj, duration)
     t0_ns = int(round(cfg.start_time * 1e9))
-
-    def ns(t: float) -> int:
-        return t0_ns + int(round(t * 1e9))
-
-    streams = {_DEPTH: _stamps(cfg.depth_rate, "depth", duration), _ODOM: _stamps(cfg.odom_rate, "odom", duration),
-               _GT: _stamps(cfg.gt_rate, "gt", duration)}
-    if cfg.laser:
-        streams[_SCAN] = _stamps(cfg.laser_rate, "scan", duration)
     imu_noise = cfg.imu_noise()
     imu = None
     if cfg.imu:
         imu = imu_stream(traj, _stamps(cfg.imu_rate, "imu", duration), imu_noise, np.random.default_rng([cfg.seed, 4]),
                          cfg.imu_gaps, cfg.imu_stuck)
-        imu_rows = np.flatnonzero(imu.keep)
-        streams[_IMU] = imu.t[imu_rows]
-        g_cov = np.diag([imu_noise.gyro_sigma ** 2] * 3).reshape(9)
-        a_cov = np.diag([imu_noise.accel_sigma ** 2] * 3).reshape(9)
-        o_cov = np.array([-1.0] + [0.0] * 8)  # orientation not provided (a raw MEMS stream)
-        o_id = np.array([0.0, 0.0, 0.0, 1.0])
-    ev_t = np.concatenate([np.round(streams[k] * 1e9).astype(np.int64) for k in streams])
-    ev_kind = np.concatenate([np.full(len(streams[k]), k) for k in streams])
-    ev_idx = np.concatenate([np.arange(len(streams[k])) for k in streams])
-    order = np.lexsort((ev_idx, ev_kind, ev_t))
-
-    cameras = cfg.cameras()
-    # the IMU on the front camera: the base's rates and specific force turned into its optical frame (the lever arm's
-    # centripetal term, ω²·r ≈ 0.01 m/s² for a camera 0.1 m off the turning axis, is left out)
-    imu_rot = cameras[0][1].matrix()[:3, :3].T if cfg.imu_on_camera else None
-    imu_frame = cameras[0][1].child if cfg.imu_on_camera else cfg.imu_frame
-    models = [cfg.camera_model(m.child) for _, m in cameras]
-    depth_noise = cfg.depth_noise()
-    depth_rngs = [np.random.default_rng([cfg.seed, 1, i]) for i in range(len(cameras))]
-    laser_mount, laser_model, laser_noise = cfg.laser_mount(), cfg.laser_model(), cfg.laser_noise()
-    laser_rng = np.random.default_rng([cfg.seed, 2])
-    beam_dt = laser_model.scan_time * laser_model.angle_increment / (2 * math.pi)
-    gt_poses = traj.pose(streams[_GT])
+    streams = _streams(cfg, duration, imu)
     odom_true = traj.pose(streams[_ODOM])
     odom_noise = cfg.odometry_noise()
     odom_poses = odometry(odom_true, odom_noise, np.random.default_rng([cfg.seed, 3]))
     truth = {"odometry": odom_noise.truth(), "imu": imu_truth(imu, imu_noise) if imu is not None else None}
-
-    counts: dict[str, int] = {}
-    timing = {"render_depth": 0.0, "depth_noise": 0.0, "render_laser": 0.0, "write": 0.0}
     wall0, cpu0 = time.perf_counter(), time.thread_time()
     with McapWriter(out, compression=cfg.compression) as w:
-
-        def put(rec, topic: str) -> None:
-            t = time.thread_time()
-            w.write(rec, topic)
-            timing["write"] += time.thread_time() - t
-            counts[topic] = counts.get(topic, 0) + 1
-
-        mounts = tuple(dataclasses.replace(m, stamp_ns=t0_ns) for _, m in cameras)
-        if cfg.laser:
-            mounts += (dataclasses.replace(laser_mount, stamp_ns=t0_ns),)
-        if cfg.imu and not cfg.imu_on_camera:
-            mounts += (dataclasses.replace(Transform.identity("base_link", cfg.imu_frame), stamp_ns=t0_ns),)
-        if cfg.tf_static:
-            put(Transforms(t0_ns, mounts, True, "/tf_static"), "/tf_static")
+        sensors = _Sensors(world, cfg, traj, w, odom_poses, traj.pose(streams[_GT]), imu)
+        sensors.mounts(t0_ns)
         w.write_metadata(METADATA, {"config": json.dumps(dataclasses.asdict(cfg), sort_keys=True),
                                     "truth": json.dumps(truth, sort_keys=True)})
-        for j in order:
-            kind, i = int(ev_kind[j]), int(ev_idx[j])
+        for kind, i in _events(streams):
             t = float(streams[kind][i])
-            stamp = ns(t)
-            if kind == _IMU:
-                k = imu_rows[i]
-                gyro, accel = (imu.gyro[k], imu.accel[k]) if imu_rot is None else (imu_rot @ imu.gyro[k],
-                                                                                    imu_rot @ imu.accel[k])
-                put(Imu(stamp, gyro, accel, o_id, o_cov, g_cov, a_cov, imu_frame), cfg.imu_topic)
-            elif kind == _GT:
-                x, y, yaw = gt_poses[i]
-                put(Odometry(stamp, float(x), float(y), float(yaw), "map", "base_link"), cfg.gt_topic)
-            elif kind == _ODOM:
-                x, y, yaw = odom_poses[i]
-                put(Odometry(stamp, float(x), float(y), float(yaw), "odom", "base_link"), cfg.odom_topic)
-            elif kind == _SCAN:
-                tt = time.thread_time()
-                beam_t = t + np.arange(laser_model.beams) * beam_dt if beam_dt > 0 else np.array([t])
-                r, _, cs = render_laser_geometry(world, traj.pose(beam_t), laser_mount, laser_model)
-                ranges = apply_laser_noise(r, cs, laser_noise, laser_model.range_min, laser_model.range_max, laser_rng)
-                timing["render_laser"] += time.thread_time() - tt
-                put(Scan(stamp, ranges, laser_model.angle_min, laser_model.angle_increment, laser_model.range_min,
-                         laser_model.range_max, laser_mount.child, time_increment=beam_dt,
-                         scan_time=1.0 / cfg.laser_rate), cfg.scan_topic)
-            else:
-                pose = traj.pose(t)[0]
-                for (cam_ns, mount), model, rng in zip(cameras, models, depth_rngs):
-                    tt = time.thread_time()
-                    z, sid, cs = render_depth_geometry(world, pose, mount, model, depth_noise.max_range)
-                    t1 = time.thread_time()
-                    _, sid, mm = depth_noise_mm(z, sid, cs, depth_noise, rng)
-                    timing["render_depth"] += t1 - tt
-                    timing["depth_noise"] += time.thread_time() - t1
-                    put(dataclasses.replace(model, stamp_ns=stamp), f"{cam_ns}/camera_info")
-                    put(DepthFrame(stamp, np.ascontiguousarray(mm), "16UC1", mount.child), f"{cam_ns}/image_depth_rect")
-                    if cfg.surface_ids:
-                        put(DepthFrame(stamp, np.ascontiguousarray(sid), "16UC1", mount.child), f"{cam_ns}/surface_id")
-                if progress is not None:
-                    progress(t, duration)
+            sensors.emit(kind, i, t, t0_ns + int(round(t * 1e9)))
+            if kind == _DEPTH and progress is not None:
+                progress(t, duration)
     wall, cpu = time.perf_counter() - wall0, time.thread_time() - cpu0
-    # odometry drift at the end: odom is anchored at the start pose (map ← odom = the true start)
-    start = pose_matrix(odom_true[0])
-    end_odom = start @ pose_matrix(odom_poses[-1])
+    timing = dict(sensors.timing, other=cpu - sum(sensors.timing.values()))
+    return {
+        "world": world.name, "output": str(out), "seed": cfg.seed, "duration_s": duration,
+        "path_duration_s": traj.duration, "distance_m": _distance(traj, min(duration, traj.duration)),
+        "messages": sensors.counts, "depth_frames": len(streams[_DEPTH]) * len(sensors.cameras),
+        "scans": len(streams.get(_SCAN, [])), "wall_s": wall, "cpu_s": cpu,
+        "real_time_factor": duration / wall if wall > 0 else float("inf"),
+        "cpu_real_time_factor": duration / cpu if cpu > 0 else float("inf"), "timing_cpu_s": timing,
+        **_odometry_drift(odom_true, odom_poses), "bytes": out.stat().st_size, "truth": truth,
+    }
+
+
+def _odometry_drift(odom_true: np.ndarray, odom_poses: np.ndarray) -> dict:
+    """Odometry's position and heading error at the end (odom is anchored at the true start pose: map ← odom)."""
+    end_odom = pose_matrix(odom_true[0]) @ pose_matrix(odom_poses[-1])
     true_end = odom_true[-1]
     drift = float(np.hypot(end_odom[0, 3] - true_end[0], end_odom[1, 3] - true_end[1]))
     drift_yaw = float(np.degrees(abs(wrap(math.atan2(end_odom[1, 0], end_odom[0, 0]) - true_end[2]))))
-    t_end = min(duration, traj.duration)
-    dist = float(np.sum(np.hypot(*np.diff(traj.pose(np.linspace(0, t_end, max(int(t_end * 20), 2)))[:, :2], axis=0).T)))
-    timing["other"] = cpu - sum(timing.values())
-    return {
-        "world": world.name, "output": str(out), "seed": cfg.seed, "duration_s": duration,
-        "path_duration_s": traj.duration, "distance_m": dist, "messages": counts,
-        "depth_frames": len(streams[_DEPTH]) * len(cameras), "scans": len(streams.get(_SCAN, [])),
-        "wall_s": wall, "cpu_s": cpu, "real_time_factor": duration / wall if wall > 0 else float("inf"),
-        "cpu_real_time_factor": duration / cpu if cpu > 0 else float("inf"), "timing_cpu_s": timing, "odom_drift_m": drift, "odom_drift_deg": drift_yaw, "bytes": out.stat().st_size,
-        "truth": truth,
-    }
+    return {"odom_drift_m": drift, "odom_drift_deg": drift_yaw}
+
+
+def _distance(traj: Trajectory, t_end: float) -> float:
+    """Distance driven in the first t_end seconds (m), sampled at 20 Hz."""
+    xy = traj.pose(np.linspace(0, t_end, max(int(t_end * 20), 2)))[:, :2]
+    return float(np.sum(np.hypot(*np.diff(xy, axis=0).T)))
 
 
 def simulation_truth(log: str | Path) -> dict | None:
