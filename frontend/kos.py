@@ -184,13 +184,7 @@ class KosAccumulator:
         if img.ndim != 2 or img.shape != (camera.height, camera.width):
             raise ValueError(f"KOS needs a {camera.height}×{camera.width} depth image, got shape {img.shape}")
         mask = pixel_mask(img.shape, pixels)
-        tb = self._pixel_table(camera, mount)
-        dmin = self.min_range if min_depth is None else float(min_depth)
-        dmax = self.max_range if max_depth is None else float(max_depth)
-        b = self.bearings
-        tx, ty, tz = tb.t
-        g = ImageGrid(tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, tx, ty, tz, tb.a0, 1.0 / b.angle_increment, tb.n_local,
-                      tb.bin0, b.n, b.full_circle, _F(dmin), _F(dmax), _F(self.min_range ** 2), _F(self.max_range ** 2))
+        g = self.image_grid(camera, mount, min_depth, max_depth)
         img = np.ascontiguousarray(img)
         if self.window <= 0:
             _accumulate_image(img, mask, g, self._lo32, self._hi32, self._r2,
@@ -198,6 +192,19 @@ class KosAccumulator:
         else:  # every block's points kept for the surface pass
             _surface_rule(img, mask, g, self._lo32, self._hi32, _F(self.window),
                           image_buffers(img.shape, len(self.names), True), self._r2)
+
+    def image_grid(self, camera: CameraModel, mount: Transform, min_depth: float | None = None,
+                   max_depth: float | None = None) -> ImageGrid:
+        """The image kernels' tables for `camera` on `mount`: per-pixel rays (memoised), the bin grid and the depth
+        and range limits (default: the accumulator's)."""
+        tb = self._pixel_table(camera, mount)
+        dmin = self.min_range if min_depth is None else float(min_depth)
+        dmax = self.max_range if max_depth is None else float(max_depth)
+        b = self.bearings
+        tx, ty, tz = tb.t
+        return ImageGrid(tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, tx, ty, tz, tb.a0, 1.0 / b.angle_increment,
+                         tb.n_local, tb.bin0, b.n, b.full_circle, _F(dmin), _F(dmax), _F(self.min_range ** 2),
+                         _F(self.max_range ** 2))
 
     def _pixel_table(self, camera: CameraModel, mount: Transform) -> PixelTable:
         intrinsics = (camera.width, camera.height, camera.fx, camera.fy, camera.cx, camera.cy)

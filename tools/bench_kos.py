@@ -90,38 +90,30 @@ def cpu_ms(fn, repeat: int = 15) -> float:
 
 
 @njit(cache=True, error_model="numpy")
-def _stages(depth, mask, ax, ay, az, bx, by, bz, tx, ty, tz, a0, inv_inc, n_local, bin0, n, full_circle, lo, hi, dmin, dmax,
-            rmin2, rmax2, out2, upto):  # pragma: no cover - compiled
+def _stages(depth, mask, g, lo, hi, out2, upto):  # pragma: no cover - compiled
     """`frontend.kos_image._accumulate_image` stopped after stage `upto` (0 rows, 1 column bins, 2 band minima, 3 all).
     A copy on purpose: an `upto` argument on the kernel itself made add_depth ~1.4× slower (1.17 vs 0.75–0.89 ms
-    for 3 levels + obstacle, measured 2026-11-23), the production path must not pay for the profile."""
-    h, w = depth.shape
+    for 3 levels + obstacle), the production path must not pay for the profile."""
+    w = depth.shape[1]
     n_band = lo.shape[0]
-    R = K._ROWS
-    ks = np.empty((R, w), np.int32)
-    r2s = np.empty((R, w), np.float32)
-    zs = np.empty((R, w), np.float32)
+    ks = np.empty((K._ROWS, w), np.int32)
+    r2s = np.empty((K._ROWS, w), np.float32)
+    zs = np.empty((K._ROWS, w), np.float32)
     kmin = np.empty(w, np.int32)
     kmax = np.empty(w, np.int32)
     m_lo = np.empty((n_band, w), np.float32)
     m_hi = np.empty((n_band, w), np.float32)
     zmin = lo.min()
     zmax = hi.max()
-    for v0 in range(0, h, R):
-        rows = min(R, h - v0)
-        for r in range(rows):
-            v = v0 + r
-            K._row_bins(depth[v], mask[v], ax, ay, az, bx[v], by[v], bz[v], tx, ty, tz, a0, inv_inc, n_local, zmin,
-                        zmax, dmin, dmax, rmin2, rmax2, ks[r], r2s[r], zs[r])
-        for r in range(rows, R):
-            ks[r, :] = -1
+    for v0 in range(0, depth.shape[0], K._ROWS):
+        K._block_points(depth, mask, v0, g, zmin, zmax, ks, r2s, zs)
         if upto >= 1:
             K._column_bins(ks, kmin, kmax)
         if upto >= 2:
             for j in range(n_band):
                 K._column_band_min(ks, r2s, zs, lo[j], hi[j], kmin, kmax, m_lo[j], m_hi[j])
         if upto >= 3:
-            K._column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, bin0, n, full_circle, out2)
+            K._column_scatter(ks, r2s, zs, lo, hi, kmin, kmax, m_lo, m_hi, g.bin0, g.n, g.full_circle, out2)
 
 
 def profile(d, cam, mount, pixels, b, dcfg, repeat) -> dict:
@@ -129,17 +121,11 @@ def profile(d, cam, mount, pixels, b, dcfg, repeat) -> dict:
     acc = KosAccumulator(KosConfig(), b, dcfg.min_depth, dcfg.max_depth, surface_window(KosConfig(), FspfConfig()))
     img = np.asarray(d, np.float32)
     mask = K.pixel_mask(img.shape, pixels)
-    tb = acc._pixel_table(cam, mount)
-    g = K.ImageGrid(tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, *tb.t, tb.a0, 1.0 / b.angle_increment, tb.n_local, tb.bin0,
-                    b.n, b.full_circle, K._F(dcfg.min_depth), K._F(dcfg.max_depth), K._F(dcfg.min_depth ** 2),
-                    K._F(dcfg.max_depth ** 2))
-    args = (img, mask, tb.ax, tb.ay, tb.az, tb.bx, tb.by, tb.bz, *tb.t, tb.a0, 1.0 / b.angle_increment, tb.n_local, tb.bin0,
-            b.n, b.full_circle, acc._lo32, acc._hi32, K._F(dcfg.min_depth), K._F(dcfg.max_depth),
-            K._F(dcfg.min_depth ** 2), K._F(dcfg.max_depth ** 2), acc._r2)
+    g = acc.image_grid(cam, mount)
     stage = []
     for upto in range(4):
-        _stages(*args, upto)
-        stage.append(cpu_ms(lambda: _stages(*args, upto), repeat))
+        _stages(img, mask, g, acc._lo32, acc._hi32, acc._r2, upto)
+        stage.append(cpu_ms(lambda: _stages(img, mask, g, acc._lo32, acc._hi32, acc._r2, upto), repeat))
     full = cpu_ms(lambda: (acc.reset(), acc.add_depth(d, cam, mount, pixels)), repeat)
     pts = K.image_buffers(img.shape, len(acc.names), True)  # the blocks the surface rule keeps
     near2 = np.full_like(acc._r2, np.inf)
@@ -175,6 +161,50 @@ KEYS = {  # key: (label, points key, what runs)
 LEVELS = {1: [0.3], 3: [0.3, 0.75, 1.5], 6: [0.2, 0.45, 0.75, 1.0, 1.25, 1.5]}
 
 
+def time_frame(d, cam, mount, seed: int, dcfg: DepthConfig, repeat: int, rows: dict) -> dict:
+    """Every method of KEYS on one frame, appended to rows (CPU ms, best of `repeat`); returns its profile."""
+    planes = filter_planes(d, cam, FspfConfig(analysed_fraction=0.99), dcfg, mount, seed=seed)
+    ok = depth_constraints(d, dcfg.min_depth, dcfg.max_depth)
+    rr, cc = np.nonzero(ok)
+    allpts = backproject(d, cam, rr, cc)
+    b = bearings_for([(cam, mount)])
+    lo, hi = camera_view(cam, mount)
+    for key in KEYS:
+        kind = key[:3]
+        if kind not in ("img", "pts"):
+            continue
+        n_lev, src = int(key[3]), key.split("_")[1]
+        # the default bins keep each nearest surface's mean; "pointrule" the nearest point (thesis Alg. 7)
+        kcfg = KosConfig(levels=LEVELS[n_lev], nearest="point" if src == "pointrule" else "surface")
+        acc = KosAccumulator(kcfg, b, dcfg.min_depth, dcfg.max_depth, surface_window(kcfg, FspfConfig()))
+        if kind == "img":
+            pix = None if src == "depth" else planes.pixels
+            run = lambda: (acc.reset(), acc.add_depth(d, cam, mount, pix), acc.ranges)  # noqa: E731
+        else:
+            pts = planes.points if src == "planes" else allpts
+            run = lambda: (acc.reset(), acc.add(pts, mount, (hi - lo) / 2), acc.ranges)  # noqa: E731
+        run()  # compile / warm the tables
+        rows[key].append(cpu_ms(run, repeat))
+    rows["kos3_numpy_planes"].append(cpu_ms(lambda: kos_numpy(planes.points, mount, KosConfig(), b), repeat=2))
+    rows["d2l"].append(cpu_ms(lambda: depthimage_to_laserscan(d, cam), repeat))
+    rows["n_planes"].append(len(planes.points))
+    rows["n_depth"].append(len(allpts))
+    return profile(d, cam, mount, planes.pixels, b, dcfg, repeat)
+
+
+def summarise(rows: dict, prof: list[dict]) -> dict:
+    """Medians and p90s over frames, the cost per added level and the surface rule's against the point rule's."""
+    res = {k: {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
+           for k, v in ((k, np.array(v, float)) for k, v in rows.items())}
+    res["per_added_level_ms"] = (res["img3_planes"]["median"] - res["img1_planes"]["median"]) / 2
+    res["per_added_level_ms_3_to_6"] = (res["img6_planes"]["median"] - res["img3_planes"]["median"]) / 3
+    res["per_added_level_ms_before"] = (res["pts3_planes"]["median"] - res["pts1_planes"]["median"]) / 2
+    # the surface rule against the nearest point, frame by frame (both timed in turn on each frame)
+    res["surface_over_point"] = float(np.median(np.array(rows["img3_planes"]) / np.array(rows["img3_pointrule"])))
+    res["profile_median_ms"] = {k: float(np.median([p[k] for p in prof])) for k in prof[0]}
+    return res
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=20)
@@ -184,59 +214,31 @@ def main() -> None:
     load_before = os.getloadavg()
     warmup()
     data = frames(args.frames)
-    dcfg = DepthConfig()
     rows = {k: [] for k in list(KEYS) + ["n_planes", "n_depth"]}
-    prof = []
-    for i, (d, cam, mount) in enumerate(data):
-        planes = filter_planes(d, cam, FspfConfig(analysed_fraction=0.99), dcfg, mount, seed=i)
-        ok = depth_constraints(d, dcfg.min_depth, dcfg.max_depth)
-        rr, cc = np.nonzero(ok)
-        allpts = backproject(d, cam, rr, cc)
-        b = bearings_for([(cam, mount)])
-        lo, hi = camera_view(cam, mount)
-        for key in KEYS:
-            kind = key[:3]
-            if kind not in ("img", "pts"):
-                continue
-            n_lev, src = int(key[3]), key.split("_")[1]
-            # the default bins keep each nearest surface's mean; "pointrule" the nearest point (thesis Alg. 7)
-            kcfg = KosConfig(levels=LEVELS[n_lev], nearest="point" if src == "pointrule" else "surface")
-            acc = KosAccumulator(kcfg, b, dcfg.min_depth, dcfg.max_depth, surface_window(kcfg, FspfConfig()))
-            if kind == "img":
-                pix = None if src == "depth" else planes.pixels
-                run = lambda: (acc.reset(), acc.add_depth(d, cam, mount, pix), acc.ranges)  # noqa: E731
-            else:
-                pts = planes.points if src == "planes" else allpts
-                run = lambda: (acc.reset(), acc.add(pts, mount, (hi - lo) / 2), acc.ranges)  # noqa: E731
-            run()  # compile / warm the tables
-            rows[key].append(cpu_ms(run, args.repeat))
-        rows["kos3_numpy_planes"].append(cpu_ms(lambda: kos_numpy(planes.points, mount, KosConfig(), b), repeat=2))
-        rows["d2l"].append(cpu_ms(lambda: depthimage_to_laserscan(d, cam), args.repeat))
-        rows["n_planes"].append(len(planes.points))
-        rows["n_depth"].append(len(allpts))
-        prof.append(profile(d, cam, mount, planes.pixels, b, dcfg, args.repeat))
-
-    def stat(k):
-        v = np.array(rows[k], float)
-        return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90))}
-
-    res = {k: stat(k) for k in rows}
-    res["per_added_level_ms"] = (res["img3_planes"]["median"] - res["img1_planes"]["median"]) / 2
-    res["per_added_level_ms_3_to_6"] = (res["img6_planes"]["median"] - res["img3_planes"]["median"]) / 3
-    res["per_added_level_ms_before"] = (res["pts3_planes"]["median"] - res["pts1_planes"]["median"]) / 2
-    # the surface rule against the nearest point, frame by frame (both timed in turn on each frame)
-    res["surface_over_point"] = float(np.median(np.array(rows["img3_planes"]) / np.array(rows["img3_pointrule"])))
-    res["profile_median_ms"] = {k: float(np.median([p[k] for p in prof])) for k in prof[0]}
+    prof = [time_frame(d, cam, mount, i, DepthConfig(), args.repeat, rows) for i, (d, cam, mount) in enumerate(data)]
+    res = summarise(rows, prof)
     load_after = os.getloadavg()
     res["machine"] = {"python": platform.python_version(), "cpu": platform.processor() or platform.machine(),
                       "frames": len(data), "repeat": args.repeat, "pinning": pin, "load_average_before": load_before,
                       "load_average_after": load_after}
+    lines = report(res, rows, len(data), args.repeat)
+    out = REPO / "docs" / "bench"
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "kos.json").write_text(json.dumps(res, indent=2))
+    (out / "kos.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+def report(res: dict, rows: dict, n_frames: int, repeat: int) -> list[str]:
+    """kos.md's lines."""
+    pin, (load_before, load_after) = res["machine"]["pinning"], (res["machine"]["load_average_before"],
+                                                                  res["machine"]["load_average_after"])
     base = res["d2l"]["median"]
     before = {"img1_planes": "pts1_planes", "img3_planes": "pts3_planes", "img3_depth": "pts3_depth"}
     lines = ["# KOS benchmark", "",
-             f"{len(data)} simulated Kinect v2 frames (office world, 512×424, noisy), {pin}, load average "
+             f"{n_frames} simulated Kinect v2 frames (office world, 512×424, noisy), {pin}, load average "
              f"{load_before[0]:.1f} → {load_after[0]:.1f} (1 min; a shared 2-core machine); CPU ms per frame including "
-             f"building the `ranges` array, best of {args.repeat} runs per frame, median and p90 over frames. Targets at "
+             f"building the `ranges` array, best of {repeat} runs per frame, median and p90 over frames. Targets at "
              f"40 Hz: 3 levels + obstacle ≤ {TARGET_3_LEVELS_MS} ms, each added level ≤ {TARGET_PER_LEVEL_MS} ms.", "",
              "| method | input points (median) | median ms | p90 ms | × depthimage_to_laserscan | speed-up vs point kernel |",
              "|---|---:|---:|---:|---:|---:|"]
@@ -255,7 +257,7 @@ def main() -> None:
               "Where an image-kernel call goes (3 levels + obstacle, FSPF+ plane pixels; CPU ms, median over frames; "
               "stages timed separately, so they need not add up exactly):", "", "| stage | ms |", "|---|---:|"]
     lines += [f"| {k} | {v:.3f} |" for k, v in res["profile_median_ms"].items()]
-    lines += ["", "## What changed and where the time goes", "",
+    lines += ["", "## How the image kernel works and where the time goes", "",
               "The point kernel (`KosAccumulator.add`, kept as the reference) spends ~20 ns per point: its N×3 float32 "
               "input (stride-3 loads) and numba's default error model (a zero-division test before every division) "
               "keep LLVM from vectorising it, and the bearing-table lookup and the per-band tests branch per point. "
@@ -284,11 +286,7 @@ def main() -> None:
               "skipping 64-pixel row segments without a plane pixel, four bands per band-minima pass, 128-column blocks, "
               "16-row blocks; the bin index in float32 (no faster). Times move ±30 % with the other processes on this "
               "2-core machine: compare columns of one run, not runs."]
-    out = REPO / "docs" / "bench"
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "kos.json").write_text(json.dumps(res, indent=2))
-    (out / "kos.md").write_text("\n".join(lines) + "\n")
-    print("\n".join(lines))
+    return lines
 
 
 if __name__ == "__main__":
