@@ -47,6 +47,20 @@ class Stretch:
     end_s: float | None
 
 
+PLACE_MIN_P = 0.01  # a search's place is reported while its posterior is at least this
+
+
+@dataclass
+class Places:
+    """One window search while no pose was held: the places still in the running, best first, with their posterior
+    probabilities (posterior ≥ PLACE_MIN_P). Two or more of them: the scans so far fit each about as well."""
+
+    t_s: float  # log seconds from the first scan
+    poses: np.ndarray  # (K, 3)
+    prob: np.ndarray  # (K,)
+    claim: bool  # the best place was claimed on this search
+
+
 @dataclass
 class LocalizeResult:
     """A pose per scan (base_link in the map frame) with the filter's confidence."""
@@ -63,6 +77,7 @@ class LocalizeResult:
     mode_share: np.ndarray  # (S,) share of the particles' weight in the mode the pose is taken from
     status: np.ndarray  # (S,) int8 SEARCHING / TRACKING / LOST
     snapshots: list[Snapshot] = field(default_factory=list)
+    searches: list[Places] = field(default_factory=list)  # the window's searches (depth camera with odometry)
     updates: int = 0
     seconds: float = 0.0
 
@@ -264,6 +279,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     fposes = np.zeros((n, 3))
     status = np.zeros(n, np.int8)
     snaps: list[Snapshot] = []
+    searches: list[Places] = []
     min_a = math.radians(cfg.update_min_a_deg)
     conv = _Tight(cfg, inp.has_odom)
     est = mcl.estimate(flt.parts, flt.w)
@@ -290,7 +306,11 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             else:
                 flt.diffuse(inp.stamps[i] - t_last)
             t_last = inp.stamps[i]
-            est, tracked = _update(flt, ws, pts, u, tracked)
+            est, tracked, v = _update(flt, ws, pts, u, tracked)
+            if v is not None:
+                alive = v.prob >= PLACE_MIN_P
+                searches.append(Places(float(inp.stamps[i] - inp.stamps[0]), v.poses[alive].copy(), v.prob[alive].copy(),
+                                       bool(v.claim)))
             if cfg.mcap_particles:
                 k = min(cfg.mcap_particles, len(flt.parts))
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
@@ -315,7 +335,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         if progress is not None:
             progress(float(inp.stamps[i] - inp.stamps[0]), inp.duration_s)
     return LocalizeResult(inp.stamps_ns, poses, fposes, out["sx"], out["sy"], out["score"], out["inl"],
-                          out["np"].astype(int), out["ratio"], out["share"], status, snaps, flt.updates,
+                          out["np"].astype(int), out["ratio"], out["share"], status, snaps, searches, flt.updates,
                           time.perf_counter() - t_start)
 
 
@@ -331,19 +351,22 @@ class _Tight:
 
 def _update(flt: _Filter, ws: WindowSearch | None, pts: np.ndarray, u, tracked):
     """One filter update on a scan (the particles already moved): the measurement, and with the window, its search
-    while no pose is held or its check while one is. The new estimate and the refined track (None: restarted)."""
+    while no pose is held or its check while one is. The new estimate, the refined track (None: restarted) and the
+    search's verdict (None: no search)."""
     if ws is None or flt.found:  # the first pose is the window search's claim: until then the set is its places
         flt.measure(pts)  # (Filter.apply), and weighing them by one scan would add nothing
     est = mcl.estimate(flt.parts, flt.w)
+    v = None
     if ws is not None:
         ws.window.add(u, pts)
         if not flt.tracking and ws.due():
-            flt.apply(ws.search(flt.z_max))
+            v = ws.search(flt.z_max)
+            flt.apply(v)
             est = mcl.estimate(flt.parts, flt.w)
         elif flt.tracking and ws.check_due() and ws.check(flt.z_max, est.pose if tracked is None else tracked):
             flt.restart()  # carried: the next search, due now, claims the checks' place if sure again
             tracked = None
-    return est, tracked
+    return est, tracked, v
 
 
 def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: np.ndarray, est, tracked, conv: _Tight):

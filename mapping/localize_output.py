@@ -57,7 +57,8 @@ def metrics(result: LocalizeResult, inp, cfg, map_path: str, truth: bool = True)
                                           "lasted_s": None if s.end_s is None else s.end_s - s.start_s} for s in lost],
                                 "spread_xy_median_m": float(np.median(result.spread_xy[result.status == TRACKING]))
                                 if np.any(result.status == TRACKING) else None,
-                                "score_median": float(np.median(result.score))}}
+                                "score_median": float(np.median(result.score)),
+                                "search": search_summary(result)}}
     if truth and inp.ground_truth is not None:
         gt, ok = truth_at(result, inp.ground_truth)
         e = np.hypot(result.poses[:, 0] - gt[:, 0], result.poses[:, 1] - gt[:, 1])
@@ -77,6 +78,25 @@ def metrics(result: LocalizeResult, inp, cfg, map_path: str, truth: bool = True)
                       "while_tracking": {"position_m": _stats(e[tracking]), "heading_deg": _stats(eh[tracking])},
                       "within_0.1m_2deg_from_s": first_good}
     return m
+
+
+LOOK_ALIKE_P = 0.1  # a place counts as a look-alike of the best while its posterior is at least this
+
+
+def search_summary(result: LocalizeResult) -> dict:
+    """The window's searches (depth camera with odometry): each one's places in the running with their posterior,
+    and when the scans fit two or more places about equally (each ≥ LOOK_ALIKE_P): a run that has not claimed a pose
+    says why, and which places it could not tell apart."""
+    rows = [{"t_s": p.t_s, "claim": p.claim,
+             "places": [{"x": float(q[0]), "y": float(q[1]), "yaw_deg": float(math.degrees(q[2])), "p": float(w)}
+                        for q, w in zip(p.poses, p.prob)]} for p in result.searches]
+    several = [p.t_s for p in result.searches if int(np.sum(p.prob >= LOOK_ALIKE_P)) >= 2]
+    last = result.searches[-1] if result.searches else None
+    return {"searches": rows,
+            "look_alikes_from_s": several[0] if several else None, "look_alikes_until_s": several[-1] if several else None,
+            "most_look_alikes": max((int(np.sum(p.prob >= LOOK_ALIKE_P)) for p in result.searches), default=0),
+            "last_places": rows[-1]["places"] if last is not None and not last.claim and len(result.status)
+            and result.status[-1] != TRACKING else []}
 
 
 def write_confidence(path: Path, result: LocalizeResult) -> Path:
@@ -176,6 +196,18 @@ def _fmt(v, unit="", digits=3) -> str:
     return "—" if v is None else f"{v:.{digits}f}{unit}"
 
 
+def _look_alike_text(search: dict | None) -> str:
+    if not search or search["look_alikes_from_s"] is None:
+        return ""
+    text = (f"The scans fitted up to {search['most_look_alikes']} places of the map about equally (each with a posterior "
+            f"of at least {LOOK_ALIKE_P:g} in the window's search) from {search['look_alikes_from_s']:.1f} s to "
+            f"{search['look_alikes_until_s']:.1f} s; no pose is claimed while they do.")
+    if search["last_places"]:
+        text += " At the end of the log, still in the running: " + "; ".join(
+            f"({q['x']:.1f}, {q['y']:.1f}, {q['yaw_deg']:.0f}°) p = {q['p']:.2f}" for q in search["last_places"][:4]) + "."
+    return text
+
+
 def report(out: Path, m: dict, traj: Path, conf: Path) -> None:
     run, loc = m["run"], m["localization"]
     blocks: list[tuple] = [("h", 1, "kosmap localize"),
@@ -189,6 +221,9 @@ def report(out: Path, m: dict, traj: Path, conf: Path) -> None:
                              ["median spread while tracking", _fmt(loc["spread_xy_median_m"], " m")],
                              ["median match score", _fmt(loc["score_median"])],
                              ["lost stretches", str(len(loc["lost"]))]])]
+    look = _look_alike_text(loc.get("search"))
+    if look:
+        blocks.append(("p", look))
     if loc["lost"]:
         blocks.append(("table", ["lost at (s)", "found again at (s)", "lasted (s)"],
                        [[f"{s['start_s']:.1f}", _fmt(s["recovered_s"], "", 1), _fmt(s["lasted_s"], "", 1)]
