@@ -191,18 +191,18 @@ def read_mosd(path: Path) -> DepthSample:
 ROS_DEFAULT = (525.0, 525.0, 319.5, 239.5)  # TUM's recommendation for depth → 3D; Open3D's primesense
 
 
+def tum_frames(folder: Path) -> list[tuple[float, Path]]:
+    """(stamp, depth PNG) of every frame of a TUM RGB-D folder's depth list, in order."""
+    rows = [line.split()[:2] for line in (folder / "depth_included.txt").read_text().splitlines() if line.strip()]
+    return [(float(t), folder / rel) for t, rel in rows]
+
+
 def iter_dataset(folder: str | Path, limit: int | None = None, every: int = 1) -> Iterator[DepthSample]:
     """The frames of one dataset folder of ../shared/data/depth (by its folder name)."""
     folder = Path(folder)
     name = folder.name
     if name == "tum_fr1_xyz":
-        files = []
-        for line in (folder / "depth_included.txt").read_text().splitlines():
-            if line.strip():
-                t, rel = line.split()[:2]
-                files.append((float(t), folder / rel))
-        files = files[::every][:limit]
-        for t, p in files:
+        for t, p in tum_frames(folder)[::every][:limit]:
             yield DepthSample(name, p.stem, read_tum_depth(p), _cam(640, 480, *ROS_DEFAULT), t, units=5000.0)
     elif name == "open3d_rgbd_formats":
         items = [("TUM", read_tum_depth, "TUM_depth.png", (535.4, 539.2, 320.1, 247.6), 5000.0),

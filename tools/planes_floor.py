@@ -45,13 +45,15 @@ class TumLabels:
     def __init__(self, folder: Path):
         from scipy.spatial.transform import Rotation
 
-        acc, self.gt = np.loadtxt(folder / "accelerometer.txt"), np.loadtxt(folder / "groundtruth.txt")
-        self._rotation = Rotation
+        acc, gt = np.loadtxt(folder / "accelerometer.txt"), np.loadtxt(folder / "groundtruth.txt")
+        self.stamps, self.rotations = gt[:, 0], Rotation.from_quat(gt[:, 4:8]).as_matrix()
         up = np.mean([self.rot(a[0]) @ (a[1:] * np.array([-1.0, -1.0, 1.0])) for a in acc[::5]], axis=0)
         self.up = up / np.linalg.norm(up)
 
     def rot(self, t: float) -> np.ndarray:
-        return self._rotation.from_quat(self.gt[np.argmin(np.abs(self.gt[:, 0] - t)), 4:8]).as_matrix()
+        """The rotation of the ground-truth pose nearest in time to t (the earlier of two as near)."""
+        i = int(np.clip(np.searchsorted(self.stamps, t), 1, len(self.stamps) - 1))
+        return self.rotations[i - 1 if t - self.stamps[i - 1] <= self.stamps[i] - t else i]
 
     def score(self, rows: list[tuple]) -> FloorScore:
         """rows: (stamp, normal, offset, ground) of the planes ≥ 2000 px."""
@@ -65,17 +67,11 @@ class TumLabels:
                           int((ground & floor).sum()), int((ground & level).sum()))
 
 
-def tum_frames(folder: Path) -> list[tuple[float, Path]]:
-    """(stamp, depth PNG) of every frame, in order."""
-    rows = [line.split()[:2] for line in (folder / "depth_included.txt").read_text().splitlines() if line.strip()]
-    return [(float(t), folder / rel) for t, rel in rows]
-
-
 def run_floor(folder: Path, labels: TumLabels, seed: int, every: int, phase: int,
               period: float | None = None) -> FloorScore:
     """Gravity from the frames over every `every`-th frame from frame `phase`, FSPF+ at `seed`; with `period`, the
     tracker is told the frames lie that many seconds apart (as a folder of images played at a default rate)."""
-    from kosmap.tools.datasets import iter_dataset, read_tum_depth
+    from kosmap.tools.datasets import iter_dataset, read_tum_depth, tum_frames
 
     cam = next(iter_dataset(folder, 1)).camera
     cfg, tracker, rows = FspfConfig(drop_classes=[]), GravityTracker(), []

@@ -26,9 +26,11 @@ def _check_args(path: Path, every: int, limit: int | None, figures: int) -> None
 
 def _dataset_names(folder: Path, every: int, limit: int | None) -> list[str]:
     """The frame names of a dataset folder without decoding them (for the progress bar's total)."""
+    from kosmap.tools.datasets import tum_frames
+
     n = folder.name
     if n == "tum_fr1_xyz":
-        names = [ln for ln in (folder / "depth_included.txt").read_text().splitlines() if ln.strip()]
+        names = [str(p) for _, p in tum_frames(folder)]
     elif n == "open3d_rgbd_formats":
         names = ["TUM", "SUN", "NYU"]
     elif n == "slambook2_ch5_rgbd":
