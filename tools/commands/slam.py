@@ -3,7 +3,6 @@ reference is given (or against the log's own ground-truth topic)."""
 
 from __future__ import annotations
 
-import math
 
 import sys
 from pathlib import Path
@@ -77,13 +76,10 @@ def register(app: typer.Typer) -> None:
             cal.append(f"building axes {hd['axis_deg']:+.2f}° (heading priors on {hd['priors']} of {run['keyframes']} keyframes)")
         if cal:
             print("estimated: " + ", ".join(cal))
-        on = run.get("odometry_noise") or {}
-        if on.get("measured"):  # against the scan matcher while running (backend/odomnoise.py)
-            print(f"wheel odometry measured against the scans ({on['samples']} intervals): distance "
-                  f"{100 * on['scale_error']:+.2f} %, heading drift {math.degrees(on['heading_drift']):+.3f}°/m, random "
-                  f"{100 * on['trans_sigma']:.2f} cm/√m and {math.degrees(on['yaw_sigma']):.2f}°/√m")
-        from kosmap.mapping.report import consistency_text
+        from kosmap.mapping.report import consistency_text, odometry_noise_text
 
+        if (run.get("odometry_noise") or {}).get("measured"):  # against the scan matcher (backend/odomnoise.py)
+            print(f"wheel odometry measured against the scans: {odometry_noise_text(run['odometry_noise'])}")
         print(f"self-consistency: {consistency_text(result.consistency)}")
         names = [n for k, p in paths.items()  # map.yaml's image, map.pgm, is written beside it
                  for n in ((p.with_suffix(".pgm").name, p.name) if k == "map_yaml" else (p.name,))]
