@@ -316,41 +316,77 @@ def main() -> None:
                     help="profile one serial build of the 1-minute log per config (--configs), into pipeline.json")
     ap.add_argument("--account-one", nargs=3, help=argparse.SUPPRESS)
     a = ap.parse_args()
-    if a.rewrite:
-        doc = json.loads((OUT / "pipeline.json").read_text())
-        for r in doc["runs"]:
-            r["breakdown_cpu_per_log_s"] = breakdown(r)
-        (OUT / "pipeline.json").write_text(json.dumps(doc, indent=2) + "\n")
-        (OUT / "pipeline.md").write_text(markdown(doc))
-        return
     if a.one:
         one(a.one[0], a.one[1], int(a.one[2]), a.one[3], a.set)
-        return
-    if a.account_one:
+    elif a.account_one:
         account(*a.account_one, a.set)
-        return
-    if a.account:
+    elif a.rewrite or a.account:
         doc = json.loads((OUT / "pipeline.json").read_text())
-        log, bp = office_log(min(a.minutes))
-        doc["accounting"] = []
-        for c in a.configs:
-            sets = [] if c == "default" else c.split(",")
-            p = subprocess.run([sys.executable, "-m", "kosmap.tools.bench_pipeline", "--account-one", str(log),
-                                str(CACHE / f"out_{log.stem}_profile"), str(bp)] + [f"--set={x}" for x in sets],
-                               capture_output=True, text=True, cwd=REPO)
-            if p.returncode != 0:
-                raise SystemExit(f"profiled build failed:\n{p.stderr[-3000:]}")
-            doc["accounting"].append(json.loads(p.stdout.strip().splitlines()[-1]))
-        doc["accounting_commit"] = doc.get("commit")
+        if a.rewrite:
+            for r in doc["runs"]:
+                r["breakdown_cpu_per_log_s"] = breakdown(r)
+        else:
+            log, bp = office_log(min(a.minutes))
+            doc["accounting"] = [_profiled(log, bp, c) for c in a.configs]
+            doc["accounting_commit"] = doc.get("commit")
         (OUT / "pipeline.json").write_text(json.dumps(doc, indent=2) + "\n")
         (OUT / "pipeline.md").write_text(markdown(doc))
+    else:
+        measure(a)
+
+
+def _sets(config: str) -> list[str]:
+    """--configs entry → its --set strings."""
+    return [] if config == "default" else config.split(",")
+
+
+def _profiled(log: Path, bp: Path, config: str) -> dict:
+    """One profiled serial build of `log` (a subprocess running `account`), its accounting."""
+    p = subprocess.run([sys.executable, "-m", "kosmap.tools.bench_pipeline", "--account-one", str(log),
+                        str(CACHE / f"out_{log.stem}_profile"), str(bp)] + [f"--set={x}" for x in _sets(config)],
+                       capture_output=True, text=True, cwd=REPO)
+    if p.returncode != 0:
+        raise SystemExit(f"profiled build failed:\n{p.stderr[-3000:]}")
+    return json.loads(p.stdout.strip().splitlines()[-1])
+
+
+def _previous_runs(old: dict) -> dict:
+    """The last results by run key (for the ratios): pipeline.json's runs and the ones they replaced."""
+    previous = {_key(r): r for r in old.get("runs", [])}
+    previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
+    return previous
+
+
+def _with_previous(r: dict, prev: dict | None) -> None:
+    """Record in r the same run's last result, unless it processed other frames (another config or log)."""
+    if prev is None or prev["metrics"]["frames"]["processed"] != r["metrics"]["frames"]["processed"]:
         return
+    r["previous"] = {k: prev[k] for k in ("wall_s", "cpu_main_s", "cpu_workers_s", "maxrss_main_mb",
+                                          "maxrss_worker_mb", "memory", "f1", "commit") if k in prev}
+    r["previous"]["realtime_factor"] = prev["metrics"]["timing"]["realtime_factor"]
+
+
+def _compare(log: Path, bp: Path, a: argparse.Namespace, base: Path, minutes: float) -> list[dict]:
+    """--against: each config built alternately with REV's code and this tree's."""
+    out = []
+    for c in a.configs:
+        x = against(log, bp, a.workers, _sets(c), base, a.pairs)
+        x.update({"minutes": minutes, "workers": a.workers, "sets": _sets(c)})
+        print(f"{minutes:g} min {' '.join(x['sets']) or 'default'}: {x['base_commit']} "
+              f"{' '.join(f'{v:.2f}×' for v in x['base']['realtime_factor'])}, this tree "
+              f"{' '.join(f'{v:.2f}×' for v in x['head']['realtime_factor'])}: {x['speedup_wall']:.2f}× faster, "
+              f"{x['cpu_ratio']:.2f}× less CPU (medians)", flush=True)
+        out.append(x)
+    return out
+
+
+def measure(a: argparse.Namespace) -> None:
+    """Build the office logs of --minutes with each config (and serially), write pipeline.json and pipeline.md."""
     rows = []
     old = json.loads((OUT / "pipeline.json").read_text()) if (OUT / "pipeline.json").is_file() else {}
     old_commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
                                 cwd=REPO).stdout.strip() + (" (+ local changes)" if _dirty() else "")
-    previous = {_key(r): r for r in old.get("runs", [])}  # the last results, for the ratios
-    previous.update({_key(r): r for r in old.get("previous", {}).values() if _key(r) not in previous})
+    previous = _previous_runs(old)
     other_cpu = old.get("machine", {}).get("cpu")
     if old and other_cpu != cpu_model():  # another kind of machine: its times are no baseline for this one's
         print(f"the previous results were measured on another machine ({other_cpu or 'processor not recorded'}): "
@@ -361,16 +397,8 @@ def main() -> None:
     for minutes in a.minutes:
         log, bp = office_log(minutes)
         if base is not None:
-            for c in a.configs:
-                sets = [] if c == "default" else c.split(",")
-                x = against(log, bp, a.workers, sets, base, a.pairs)
-                x.update({"minutes": minutes, "workers": a.workers, "sets": sets})
-                print(f"{minutes:g} min {' '.join(sets) or 'default'}: {x['base_commit']} "
-                      f"{' '.join(f'{v:.2f}×' for v in x['base']['realtime_factor'])}, this tree "
-                      f"{' '.join(f'{v:.2f}×' for v in x['head']['realtime_factor'])}: {x['speedup_wall']:.2f}× faster, "
-                      f"{x['cpu_ratio']:.2f}× less CPU (medians)", flush=True)
-                comparisons.append(x)
-        runs = [(a.workers, [] if c == "default" else c.split(",")) for c in a.configs]
+            comparisons += _compare(log, bp, a, base, minutes)
+        runs = [(a.workers, _sets(c)) for c in a.configs]
         if minutes == min(a.minutes) and not a.no_serial:
             runs.insert(1, (0, []))
         for w, sets in runs:
@@ -378,13 +406,7 @@ def main() -> None:
             r.update({"minutes": minutes, "workers": w, "sets": sets, "log_gb": log.stat().st_size / 1e9,
                       "commit": old_commit})
             r["breakdown_cpu_per_log_s"] = breakdown(r)
-            prev = previous.get(_key(r))
-            if prev is not None and prev["metrics"]["frames"]["processed"] != r["metrics"]["frames"]["processed"]:
-                prev = None  # another config under the same name (the default was 30 Hz once) or another log: no ratio
-            if prev is not None:
-                r["previous"] = {k: prev[k] for k in ("wall_s", "cpu_main_s", "cpu_workers_s", "maxrss_main_mb",
-                                                      "maxrss_worker_mb", "memory", "f1", "commit") if k in prev}
-                r["previous"]["realtime_factor"] = prev["metrics"]["timing"]["realtime_factor"]
+            _with_previous(r, previous.get(_key(r)))
             t = r["metrics"]["timing"]
             print(f"{minutes:g} min, workers {w} {' '.join(sets)}: {r['wall_s']:.0f} s wall, "
                   f"{t['realtime_factor']:.2f}× real time, peak RSS main {r['maxrss_main_mb']:.0f} MB, "
