@@ -545,8 +545,7 @@ def markdown(doc: dict) -> str:
         frame = per("frame stage (kos_frame)")
         reading = per(*(label for label, _, _ in STAGES[:3]))
         slam = per("SLAM, both: scans in (Slam.add_scan)", "SLAM, both: final solve (Slam.finish)")
-        after = per("pass 2: grids (_grid_job)", "pass 2: Foxglove MCAP (_write_mcap)",
-                    "comparisons (_compare_job)", "report (write_report)")
+        after = per(*(label for label, _, fn in STAGES if fn in ("grid_job", "write_mcap", "compare_job", "write_report")))
         name = " ".join(x["sets"]) or "default"
         L += ["", f"{name} ({x['frames']} frames in {x['log_s']:.0f} s): the frame stage takes {frame:.3f} CPU s per "
               f"second of log ({1e3 * frame * x['log_s'] / max(1, x['frames']):.1f} ms a frame), reading the log "
