@@ -131,6 +131,8 @@ def _prepare(depth_m, cam: CameraModel):
     depth = np.ascontiguousarray(depth_m, dtype=np.float32)
     if depth.ndim != 2:
         raise ValueError(f"depth image must be 2-D, got shape {depth.shape}")
+    if depth.shape[0] >= 1 << 15 or depth.shape[1] >= 1 << 16:  # FSPF+ packs a pixel as row << 16 | column
+        raise ValueError(f"depth image of {depth.shape[1]}×{depth.shape[0]} pixels: at most 65535 columns and 32767 rows")
     if (cam.height, cam.width) != depth.shape:
         raise ValueError(f"camera is {cam.width}×{cam.height} but the depth image is {depth.shape[1]}×{depth.shape[0]}; "
                          "use frontend.camera.camera_for")
@@ -180,8 +182,7 @@ def _workspace(npx: int, p_cap: int) -> dict:
     ws = getattr(_WORK, "ws", None)
     if ws is None or ws["npx"] < npx or ws["p_cap"] < p_cap:
         ws = {"npx": npx, "p_cap": p_cap, "st": np.empty(npx, np.uint8), "cand": np.empty(npx, np.int32),
-              "wr": np.empty(npx, np.int32), "wc": np.empty(npx, np.int32), "wx": np.empty(npx, np.float32),
-              "wy": np.empty(npx, np.float32), "wz": np.empty(npx, np.float32), "lbl": np.empty(npx, np.int32),
+              "win": np.empty(npx, np.int32), "stack": np.empty(npx, np.int32), "lbl": np.empty(npx, np.int32),
               "out_pix": np.empty((npx, 2), np.int32), "out_pts": np.empty((npx, 3), np.float32),
               "out_plane": np.empty(npx, np.int32), "pl_n": np.empty((p_cap, 3)), "pl_d": np.empty(p_cap),
               "pl_cls": np.empty(p_cap, np.int8), "pl_cnt": np.empty(p_cap, np.int64), "pl_mom": np.empty((p_cap, 9))}
@@ -238,7 +239,7 @@ def fspf_plus(depth_m: np.ndarray, cam: CameraModel, cfg: FspfConfig | None = No
                  int(cfg.planes_per_window), float(cfg.extra_min_fraction), float(cfg.bend_max), float(cfg.min_width),
                  float(cfg.tail_eps), bool(cfg.coherence), bool(cfg.grow), float(cfg.slanted_min_deg),
                  float(cfg.slanted_max_deg), float(classes_of.cam_h), float(cfg.ground_max_height))
-    bufs = (ws["st"], ws["cand"], ws["wr"], ws["wc"], ws["wx"], ws["wy"], ws["wz"], ws["lbl"])
+    bufs = (ws["st"], ws["cand"], ws["win"], ws["stack"], ws["lbl"])
     out = (out_pix, out_pts, out_plane, pl_n, pl_d, pl_cls, pl_cnt, pl_mom)
     n, p = fspf_plus_kernel(depth, prm, (classes_of.up, classes_of.fwd, classes_of.left), _drop_mask(cfg),
                          rng_state(seed), bufs, out, stats)

@@ -178,6 +178,26 @@ def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
     return cnt, rx, ry, rz, -(rx * (mx + ox) + ry * (my + oy) + rz * (mz + oz))
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def _score_nb(sx, sy, sz, ns, nx, ny, nz, d, eps):
+    """How many of the points (sx, sy, sz)[:ns] lie within eps of the plane (n, d)."""
+    cnt = 0
+    fx32, fy32, fz32, fd32, fe32 = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d), np.float32(eps)
+    for s in range(ns):  # float32 so the scoring loop vectorises twice as wide
+        if abs(fx32 * sx[s] + fy32 * sy[s] + fz32 * sz[s] + fd32) < fe32:
+            cnt += 1
+    return cnt
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _ransac_need(cnt, ns, beta, need):
+    """The adaptive stop of thesis Alg. 5 after a best count cnt of ns: k = (1 + β·√(1 − w³)) / w³."""
+    w3 = (cnt / ns) ** 3
+    if w3 > 0:
+        return (1.0 + beta * np.sqrt(max(0.0, 1.0 - w3))) / w3
+    return need
+
+
 @njit(cache=True, error_model="numpy")
 def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz, sidx):
     """RANSAC (thesis Alg. 5) over the first na points: 3-point hypotheses scored on ≤ subset random
@@ -206,17 +226,11 @@ def _ransac_nb(wx, wy, wz, na, eps, beta, subset, max_iter, state, sx, sy, sz, s
                                           wx[b], wy[b], wz[b], wx[c], wy[c], wz[c])
         if not ok:
             continue
-        cnt = 0
-        fx32, fy32, fz32, fd32, fe32 = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d), np.float32(eps)
-        for s in range(ns):  # float32 so the scoring loop vectorises twice as wide
-            if abs(fx32 * sx[s] + fy32 * sy[s] + fz32 * sz[s] + fd32) < fe32:
-                cnt += 1
+        cnt = _score_nb(sx, sy, sz, ns, nx, ny, nz, d, eps)
         if cnt > best:
             best = cnt
             bx, by, bz, bd = nx, ny, nz, d
-            w3 = (cnt / ns) ** 3
-            if w3 > 0:
-                need = (1.0 + beta * np.sqrt(max(0.0, 1.0 - w3))) / w3
+            need = _ransac_need(cnt, ns, beta, need)
     return best >= 3, bx, by, bz, bd
 
 
@@ -329,18 +343,33 @@ def _curved_nb(sx, sy, sz, ns, nx, ny, nz, d, eps, r2_max, bend_max):
     return 1.0 - res / tot > r2_max and qmax - qmin > bend_max * eps
 
 
+@njit(cache=True, error_model="numpy", inline="always")
+def window_point(wp, a, flat, W, tx, ty):
+    """Point a of a window held as packed pixels (row << 16 | column, thesis Alg. 3's window in image order):
+    (row, column, flat index, x, y, z), x = z·(c − cx)/fx and y = z·(r − cy)/fy from the per-column and per-row
+    factors tx, ty. The window keeps one int32 per point instead of five arrays: gathering a window and taking a
+    plane's inliers out of it cost stores, not arithmetic."""
+    q = wp[a]
+    r = q >> 16
+    c = q & 0xFFFF
+    j = r * W + c
+    z = flat[j]
+    return r, c, j, z * tx[c], z * ty[r], z
+
+
 @njit(cache=True, error_model="numpy")
-def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, st, lbl, n_pl, out_pix, out_pts,
+def _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, tail, dropped, W, st, lbl, n_pl, out_pix, out_pts,
                   out_plane, n_out, mom):
-    """One pass over the window's na points: the plane's inliers (|n·p + d| < ε) go out as plane n_pl (unless
-    its class is dropped; their moments Σp, Σppᵀ into mom), its noise tail (ε … tail) is left out, the rest is
-    compacted to the front. Returns (points kept, inliers, tail, n_out)."""
+    """One pass over the window's na points (packed pixels, window_point): the plane's inliers (|n·p + d| < ε) go
+    out as plane n_pl (unless its class is dropped; their moments Σp, Σppᵀ into mom), its noise tail (ε … tail)
+    is left out, the rest is compacted to the front. Returns (points kept, inliers, tail, n_out)."""
     keep = 0
     n_in = 0
     n_tail = 0
     mom[:] = 0.0
     for a in range(na):
-        x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
+        r, c, j, x32, y32, z32 = window_point(wp, a, flat, W, tx, ty)
+        x, y, z = np.float64(x32), np.float64(y32), np.float64(z32)
         e = abs(nx * x + ny * y + nz * z + d)
         if e >= eps and e < tail:  # the plane's noise tail: an outlier, but no seed for another plane
             n_tail += 1
@@ -348,29 +377,24 @@ def _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, tail, dropped, W, 
         if e < eps:
             n_in += 1
             if not dropped:
-                j = wr[a] * W + wc[a]
                 st[j] = 3  # a kept plane's point (back to 2 if the plane is rejected), for grow
                 lbl[j] = n_pl
-                out_pix[n_out, 0] = wr[a]
-                out_pix[n_out, 1] = wc[a]
-                out_pts[n_out, 0] = wx[a]
-                out_pts[n_out, 1] = wy[a]
-                out_pts[n_out, 2] = wz[a]
+                out_pix[n_out, 0] = r
+                out_pix[n_out, 1] = c
+                out_pts[n_out, 0] = x32
+                out_pts[n_out, 1] = y32
+                out_pts[n_out, 2] = z32
                 out_plane[n_out] = n_pl
                 n_out += 1
                 _add_moments(mom, x, y, z)
         else:
-            wr[keep] = wr[a]
-            wc[keep] = wc[a]
-            wx[keep] = wx[a]
-            wy[keep] = wy[a]
-            wz[keep] = wz[a]
+            wp[keep] = wp[a]
             keep += 1
     return keep, n_in, n_tail, n_out
 
 
 @njit(cache=True, error_model="numpy")
-def _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, W, pick, bx, by, bz, bidx):
+def _window_sample_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, W, pick, bx, by, bz, bidx):
     """≤ 256 of the plane's inliers among the window's na points (|n·p + d| < ε), with their flat pixel indices,
     before it takes them: ≤ 1024 points tested, evenly strided over the window (its points are in image order),
     and ≤ 256 of their inliers kept, evenly spread. Testing before the take spares a rejected plane's second
@@ -380,14 +404,15 @@ def _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, eps, W, pick, bx, b
     for a in range(0, na, step):
         if c == len(pick):
             break
-        if abs(nx * wx[a] + ny * wy[a] + nz * wz[a] + d) < eps:
+        _, _, _, x, y, z = window_point(wp, a, flat, W, tx, ty)
+        if abs(nx * x + ny * y + nz * z + d) < eps:
             pick[c] = a
             c += 1
     nb = min(c, 256)
     for k in range(nb):
-        a = pick[(k * c) // nb]
-        bx[k], by[k], bz[k] = wx[a], wy[a], wz[a]
-        bidx[k] = wr[a] * W + wc[a]
+        _, _, j, x, y, z = window_point(wp, pick[(k * c) // nb], flat, W, tx, ty)
+        bx[k], by[k], bz[k] = x, y, z
+        bidx[k] = j
     return nb
 
 

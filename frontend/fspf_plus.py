@@ -10,7 +10,8 @@ from numba import njit
 
 from kosmap.frontend.fspf_coherence import _split_bridge_nb
 from kosmap.frontend.fspf_kernels import (_classify_nb, _curved_nb, _grow_nb, _inlier_fit_nb, _partition_nb, _randint,
-                                          _ransac_nb, _unmark_nb, _window_sample_nb)
+                                          _ransac_need, _score_nb, _unmark_nb, _window_sample_nb, plane_through,
+                                          window_point)
 
 
 # ---- FSPF+ (thesis Alg. 3, 5, 6) -----------------------------------------------------------------------------------------
@@ -76,10 +77,10 @@ def _draw_p1_p2_nb(state, flat, st, i0, W, H, omega):
 
 
 @njit(cache=True, error_model="numpy")
-def _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats):
+def _gather_window_nb(flat, st, i0, zbar, prm, W, H, wp, stats):
     """The search window: the world size Δ at the mean depth, W = fx·Δ/z̄, H = fy·Δ/z̄ around p0, clipped at the
-    border; its eligible pixels become 3D points (win: rows, cols, x, y, z) and are consumed. Returns their count."""
-    wr, wc, wx, wy, wz = win
+    border; its eligible pixels are consumed and listed in image order as packed pixels (wp: row << 16 | column;
+    fspf_kernels.window_point makes them 3D points where a step needs them). Returns their count."""
     r0 = i0 // W
     c0 = i0 - r0 * W
     hw = int(0.5 * prm.fx * prm.delta / zbar + 0.5)
@@ -91,18 +92,13 @@ def _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats):
     k = 0
     for r in range(r_lo, r_hi + 1):
         base = r * W
-        yr = ty[r]
-        for c in range(c_lo, c_hi + 1):
-            j = base + c
-            if st[j] == 1:
-                st[j] = 2
-                z = flat[j]
-                wr[k] = r
-                wc[k] = c
-                wx[k] = z * tx[c]
-                wy[k] = z * yr
-                wz[k] = z
-                k += 1
+        rr = r << 16
+        for c in range(c_lo, c_hi + 1):  # branch-free: eligible (1) becomes consumed (2), listed
+            s = st[base + c]
+            e = s == 1
+            st[base + c] = s + e
+            wp[k] = rr | c
+            k += e
     return k
 
 
@@ -125,7 +121,7 @@ def _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, 
     that is not one surface shrinks to one of them: a layer along the surfaces' own normal, or its strongest
     sub-plane, which is tested once more (it may span two box tops). Returns the plane to take (n, d), its class
     and whether that class is dropped."""
-    wr, wc, wx, wy, wz = win
+    wp, tx, ty = win
     bx, by, bz, bidx, qx, qy, qz, ux, uy, uz, uidx, noise = sc[4:16]
     pick, lx, ly, lz = sc[17], sc[18], sc[19], sc[20]
     cam = (prm.fx, prm.fy, prm.cx, prm.cy)
@@ -133,7 +129,7 @@ def _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, 
     for _ in range(2):
         if dropped:
             break
-        nb = _window_sample_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, W, pick, bx, by, bz, bidx)
+        nb = _window_sample_nb(wp, flat, tx, ty, na, nx, ny, nz, d, prm.eps, W, pick, bx, by, bz, bidx)
         split, sx_, sy_, sz_, sd_ = _split_bridge_nb(bx, by, bz, bidx, nb, flat, W, H, cam, nx, ny, nz, d, prm.eps,
                                                      prm.beta, prm.max_iter, state, qx, qy, qz, ux, uy, uz, uidx,
                                                      noise, lx, ly, lz, np.cos(np.radians(2.0)))
@@ -154,13 +150,13 @@ def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat
                    stats):
     """A plane's inliers out of the window (_partition_nb), after the coherence test when it is on. Returns
     (points kept in the window, inliers, n_out, the plane's class, whether that class is dropped)."""
-    wr, wc, wx, wy, wz = win
+    wp, tx, ty = win
     tail = max(prm.tail_eps, 1.0) * prm.eps
     dropped = drop[cls]
     if prm.coherence:
         nx, ny, nz, d, cls, dropped = _coherent_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc,
                                                          flat, W, H, stats)
-    keep, n_in, n_tail, n_out = _partition_nb(wr, wc, wx, wy, wz, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
+    keep, n_in, n_tail, n_out = _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, prm.eps, tail, dropped, W,
                                               st, lbl, n_pl, out[0], out[1], out[2], n_out, sc[16])
     stats[S_OUTLIERS] += n_tail
     return keep, n_in, n_out, cls, dropped
@@ -233,12 +229,47 @@ def _record_plane_nb(out, n_pl, nx, ny, nz, d, cls, n_in, mom):
 
 
 @njit(cache=True, error_model="numpy")
+def _ransac_window_nb(win, flat, W, na, eps, beta, subset, max_iter, state, sx, sy, sz, sidx):
+    """RANSAC (thesis Alg. 5) over the window's first na points: fspf_kernels._ransac_nb on the packed window
+    (the points made where drawn: the same draws, the same planes)."""
+    wp, tx, ty = win
+    if na <= subset:
+        ns = na
+        for s in range(na):
+            _, _, _, sx[s], sy[s], sz[s] = window_point(wp, s, flat, W, tx, ty)
+            sidx[s] = s
+    else:
+        ns = subset
+        for s in range(subset):
+            q = _randint(state, na)
+            _, _, _, sx[s], sy[s], sz[s] = window_point(wp, q, flat, W, tx, ty)
+            sidx[s] = q
+    best = -1
+    bx = by = bz = bd = 0.0
+    need = float(max_iter)
+    it = 0
+    while it < need and it < max_iter:
+        it += 1
+        _, _, _, ax, ay, az = window_point(wp, _randint(state, na), flat, W, tx, ty)
+        _, _, _, bx_, by_, bz_ = window_point(wp, _randint(state, na), flat, W, tx, ty)
+        _, _, _, cx, cy, cz = window_point(wp, _randint(state, na), flat, W, tx, ty)
+        ok, nx, ny, nz, d = plane_through(np.float64(ax), np.float64(ay), np.float64(az), bx_, by_, bz_, cx, cy, cz)
+        if not ok:
+            continue
+        cnt = _score_nb(sx, sy, sz, ns, nx, ny, nz, d, eps)
+        if cnt > best:
+            best = cnt
+            bx, by, bz, bd = nx, ny, nz, d
+            need = _ransac_need(cnt, ns, beta, need)
+    return best >= 3, bx, by, bz, bd
+
+
+@njit(cache=True, error_model="numpy")
 def _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl, stats):
     """The planes of one window of k points (thesis Alg. 3's inner part): RANSAC (Alg. 5) and a least-squares
     refit, the class (Alg. 6), the inliers taken, planes of ≤ nMin inliers, dropped classes, thin strips and
     bent strips set apart; then again on the window's rest, up to per_window planes (1 = the thesis).
     Returns (n_out, n_pl)."""
-    wx, wy, wz = win[2], win[3], win[4]
     sx, sy, sz, sidx = sc[0], sc[1], sc[2], sc[3]
     bx, by, bz, mom = sc[4], sc[5], sc[6], sc[16]
     na = k
@@ -247,8 +278,8 @@ def _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, o
         # edges and noise of the planes found)
         if na <= prm.n_min or (pw > 0 and na < prm.extra_min * k):
             break
-        ok, nx, ny, nz, d = _ransac_nb(wx, wy, wz, na, prm.eps, prm.beta, prm.subset, prm.max_iter, state, sx, sy,
-                                       sz, sidx)
+        ok, nx, ny, nz, d = _ransac_window_nb(win, flat, W, na, prm.eps, prm.beta, prm.subset, prm.max_iter, state,
+                                              sx, sy, sz, sidx)
         if not ok:
             break
         # least-squares refit on the subset's inliers; the final plane is refitted from all its inliers' moments
@@ -283,12 +314,12 @@ def _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, o
 @njit(cache=True, error_model="numpy")
 def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
     """FSPF+ (thesis Alg. 3) on one depth image. prm: Params; axes: (up, forward, left); drop: bool per class;
-    bufs: (st, cand, rows, cols, x, y, z, plane label) of ≥ H·W entries, reused from frame to frame; out: (pixels,
+    bufs: (st, cand, window, stack, plane label) of ≥ H·W entries, reused from frame to frame; out: (pixels,
     points, plane, normals, offsets, classes, counts, moments). Returns (points, planes) written to out."""
     H, W = depth.shape
     flat = depth.ravel()
-    st, cand, lbl = bufs[0], bufs[1], bufs[7]  # st: 0 ineligible, 1 eligible, 2 consumed, 3 a kept plane's point
-    win = (bufs[2], bufs[3], bufs[4], bufs[5], bufs[6])
+    st, cand, wp, lbl = bufs[0], bufs[1], bufs[2], bufs[4]  # st: 0 ineligible, 1 eligible, 2 consumed, 3 a kept
+    # plane's point
     stats[:] = 0
     m = _depth_constraints_nb(flat, prm.min_d, prm.max_d, st, cand)
     stats[S_PIXELS], stats[S_INELIGIBLE] = H * W, H * W - m
@@ -300,6 +331,7 @@ def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
         tx[c] = (c - prm.cx) / prm.fx
     for r in range(H):
         ty[r] = (r - prm.cy) / prm.fy
+    win = (wp, tx, ty)
     sc = _scratch_nb(prm.subset)
     n_out = n_pl = 0
     while remaining > stop and m > 0:
@@ -312,7 +344,7 @@ def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
             remaining -= 1
             stats[S_OUTLIERS] += 1
             continue
-        k = _gather_window_nb(flat, st, i0, zbar, prm, W, H, tx, ty, win, stats)
+        k = _gather_window_nb(flat, st, i0, zbar, prm, W, H, wp, stats)
         remaining -= k
         if k <= prm.n_min:
             stats[S_OUTLIERS] += k
@@ -320,7 +352,7 @@ def fspf_plus_kernel(depth, prm, axes, drop, state, bufs, out, stats):
         n_out, n_pl = _window_planes_nb(win, k, prm, axes, drop, state, sc, flat, W, H, st, lbl, out, n_out, n_pl,
                                         stats)
     if prm.grow and remaining > 0:  # our extension: the unexamined pixels next to a plane join it
-        n_out, grown = _grow_nb(flat, W, H, tx, ty, prm.eps, st, lbl, win[0], win[1], out[3], out[4], out[6], out[7],
+        n_out, grown = _grow_nb(flat, W, H, tx, ty, prm.eps, st, lbl, wp, bufs[3], out[3], out[4], out[6], out[7],
                                 out[0], out[1], out[2], n_out)
         remaining -= grown
         stats[S_GROWN] = grown
