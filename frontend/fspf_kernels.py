@@ -47,20 +47,6 @@ def _uniform(state):
 # ---- shared numba pieces -------------------------------------------------------------------------------------------------
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _add_moments(mom, x, y, z):
-    """Add one point to a plane's moment sums: Σx, Σy, Σz, then Σxx, Σxy, Σxz, Σyy, Σyz, Σzz."""
-    mom[0] += x
-    mom[1] += y
-    mom[2] += z
-    mom[3] += x * x
-    mom[4] += x * y
-    mom[5] += x * z
-    mom[6] += y * y
-    mom[7] += y * z
-    mom[8] += z * z
-
-
-@njit(cache=True, error_model="numpy", inline="always")
 def plane_through(ax, ay, az, bx, by, bz, cx, cy, cz):
     """(ok, nx, ny, nz, d): the unit-normal plane through three points (a float64); ok False when they are collinear."""
     ux, uy, uz = bx - ax, by - ay, bz - az
@@ -362,11 +348,13 @@ def _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, tail, dropped, W, st
                   out_plane, n_out, mom):
     """One pass over the window's na points (packed pixels, window_point): the plane's inliers (|n·p + d| < ε) go
     out as plane n_pl (unless its class is dropped; their moments Σp, Σppᵀ into mom), its noise tail (ε … tail)
-    is left out, the rest is compacted to the front. Returns (points kept, inliers, tail, n_out)."""
+    is left out, the rest is compacted to the front. Returns (points kept, inliers, tail, n_out).
+    The moments are summed in locals and stored once: summed into mom, each sum would go through memory every
+    point (the compiler cannot tell mom from the output arrays), a chain of store-to-load latencies."""
     keep = 0
     n_in = 0
     n_tail = 0
-    mom[:] = 0.0
+    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
     for a in range(na):
         r, c, j, x32, y32, z32 = window_point(wp, a, flat, W, tx, ty)
         x, y, z = np.float64(x32), np.float64(y32), np.float64(z32)
@@ -386,10 +374,19 @@ def _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, tail, dropped, W, st
                 out_pts[n_out, 2] = z32
                 out_plane[n_out] = n_pl
                 n_out += 1
-                _add_moments(mom, x, y, z)
+                s0 += x
+                s1 += y
+                s2 += z
+                s3 += x * x
+                s4 += x * y
+                s5 += x * z
+                s6 += y * y
+                s7 += y * z
+                s8 += z * z
         else:
             wp[keep] = wp[a]
             keep += 1
+    mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6], mom[7], mom[8] = s0, s1, s2, s3, s4, s5, s6, s7, s8
     return keep, n_in, n_tail, n_out
 
 
@@ -425,20 +422,19 @@ def _unmark_nb(st, W, out_pix, start, n_out):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane, n_out, mom):
-    """Pixel (r, c) joins plane k when within ε of it (appended to the output, its moments added): the new n_out."""
+def _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane, n_out):
+    """Pixel (r, c) joins plane k when within ε of it (appended to the output): (joined, x, y, z)."""
     j = r * W + c
     z = np.float64(flat[j])
     x, y = z * tx[c], z * ty[r]
     if abs(nx * x + ny * y + nz * z + d) >= eps:
-        return n_out
+        return False, x, y, z
     st[j] = 3
     lbl[j] = k
     out_pix[n_out, 0], out_pix[n_out, 1] = r, c
     out_pts[n_out, 0], out_pts[n_out, 1], out_pts[n_out, 2] = x, y, z
     out_plane[n_out] = k
-    _add_moments(mom, x, y, z)
-    return n_out + 1
+    return True, x, y, z
 
 
 @njit(cache=True, error_model="numpy")
@@ -448,9 +444,8 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
     when within ε of it, flood-filling from there: region growing on the organised image, one test per pixel
     and neighbour. st: 1 unexamined, 3 a kept plane's point (its plane in lbl). The flood keeps rows and columns
     on two stacks (stack_r, stack_c: scratch of ≥ H·W), sparing an integer division per pixel. Returns (n_out,
-    pixels grown)."""
+    pixels grown). A flood's moments are summed in locals (see _partition_nb) and added to its plane's at its end."""
     n0 = n_out
-    mom = np.zeros(9)
     npx = H * W
     words = st[:npx - npx % 8].view(np.uint64)
     ones = np.uint64(0x0101010101010101)
@@ -480,14 +475,15 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
         if k < 0:
             continue
         nx, ny, nz, d = pl_n[k, 0], pl_n[k, 1], pl_n[k, 2], pl_d[k]
-        mom[:] = 0.0
         start = n_out
-        n_out = _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts, out_plane,
-                              n_out, mom)
-        top = 0
-        if n_out > start:
-            stack_r[0], stack_c[0] = r, c
-            top = 1
+        took, x, y, z = _grow_take_nb(r, c, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
+                                      out_plane, n_out)
+        if not took:
+            continue
+        n_out += 1
+        s0, s1, s2, s3, s4, s5, s6, s7, s8 = x, y, z, x * x, x * y, x * z, y * y, y * z, z * z
+        stack_r[0], stack_c[0] = r, c
+        top = 1
         while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
             top -= 1
             rj, cj = stack_r[top], stack_c[top]
@@ -503,13 +499,29 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
                     rq += 1
                 if rq < 0 or rq >= H or cq < 0 or cq >= W or st[rq * W + cq] != 1:
                     continue
-                m0 = n_out
-                n_out = _grow_take_nb(rq, cq, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix, out_pts,
-                                      out_plane, n_out, mom)
-                if n_out > m0:
+                took, x, y, z = _grow_take_nb(rq, cq, flat, W, tx, ty, nx, ny, nz, d, eps, k, st, lbl, out_pix,
+                                              out_pts, out_plane, n_out)
+                if took:
+                    n_out += 1
+                    s0 += x
+                    s1 += y
+                    s2 += z
+                    s3 += x * x
+                    s4 += x * y
+                    s5 += x * z
+                    s6 += y * y
+                    s7 += y * z
+                    s8 += z * z
                     stack_r[top], stack_c[top] = rq, cq
                     top += 1
         pl_cnt[k] += n_out - start
-        for a in range(9):
-            pl_mom[k, a] += mom[a]
+        pl_mom[k, 0] += s0
+        pl_mom[k, 1] += s1
+        pl_mom[k, 2] += s2
+        pl_mom[k, 3] += s3
+        pl_mom[k, 4] += s4
+        pl_mom[k, 5] += s5
+        pl_mom[k, 6] += s6
+        pl_mom[k, 7] += s7
+        pl_mom[k, 8] += s8
     return n_out, n_out - n0

@@ -164,8 +164,8 @@ def _take_plane_nb(win, na, nx, ny, nz, d, cls, prm, axes, drop, state, sc, flat
 
 @njit(cache=True, error_model="numpy", inline="always")
 def _plane_of_moments(mom, n, C):
-    """The least-squares plane of n points from their moment sums (fspf_kernels._add_moments): the covariance's
-    eigenvalues (ascending) and its smallest eigenvector, rectified to d ≥ 0. C: a 3×3 scratch array."""
+    """The least-squares plane of n points from their moment sums (Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz): the
+    covariance's eigenvalues (ascending) and its smallest eigenvector, rectified to d ≥ 0. C: a 3×3 scratch array."""
     inv = 1.0 / n
     mx, my, mz = mom[0] * inv, mom[1] * inv, mom[2] * inv
     C[0, 0] = mom[3] * inv - mx * mx
