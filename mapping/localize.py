@@ -436,10 +436,10 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
                                      math.radians(1.0), 0.0, 0.0)
     fine = ((f.match_coarse, 2 * cfg.match_sigma), (f.match, cfg.match_sigma))  # the fine levels (2σ, σ)
 
-    def match(pose: np.ndarray) -> np.ndarray:
+    def match(pose: np.ndarray, towards: np.ndarray = np.asarray(pred, float)) -> np.ndarray:
         for fld, sigma in fine:
-            pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose,
-                                      np.asarray(pred, float), w, 10, True, sigma)
+            pose, _, _ = gauss_newton(fld, f.origin[0], f.origin[1], f.resolution, p64, pose, towards, w, 10, True,
+                                      sigma)
         return pose
 
     if coarse:  # a (re)started track: from the pose whose rays pass through the fewest walls
@@ -450,7 +450,13 @@ def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray,
     # holds it there. When more than lost_through of the rays pass a map cell through a wall, the match starts
     # again from the nearby pose whose rays pass through the fewest walls
     if mcl.through_fraction(f, pose, p64, f.resolution) > cfg.lost_through:
-        pose = match(_near_face(f, cfg, p64, pose))
+        start = _near_face(f, cfg, p64, pose)
+        pose = match(start)
+        if mcl.through_fraction(f, pose, p64, f.resolution) > cfg.lost_through:
+            # the pull towards the prediction holds the match on the far face still: a pose whose readings pass
+            # through the walls is impossible whatever the prediction, so the match is pulled towards the pose whose
+            # rays pass through the fewest walls instead
+            pose = match(start, start)
     return pose
 
 

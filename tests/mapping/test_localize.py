@@ -103,6 +103,22 @@ def test_room_localized_in_its_blueprint_without_an_initial_pose(room, tmp_path,
 
 
 @pytest.mark.slow
+@pytest.mark.parametrize("seed", [7, 8])
+def test_room_claim_at_a_corner_is_matched_on_the_walls_near_face(tmp_path, localized, seed):
+    """The room's bundled path, claimed at its south-east corner while turning: the claim's pose can lie a wall's
+    thickness off, its rays ending on the east wall's far face, which the matcher's field rewards as its near one,
+    and the pull towards the prediction holds it there (0.15 m off for 8 s on these seeds). The refinement takes
+    the readings through the walls as impossible: then the match is pulled towards the pose whose rays pass through
+    the fewest walls. Measured: found at 7.7 / 9.2 s, then 0.023 / 0.023 m RMSE, at most 0.03 m off."""
+    log, plan = _simulate("room", tmp_path, 50.0, seed=seed)
+    r = localized(lambda p: log, plan)
+    loc, tr = r.loc, r.m["truth"]["after_convergence"]
+    assert loc["converged_s"] is not None and loc["converged_s"] <= 20.0 and not loc["lost"], loc
+    assert tr["position_m"]["rmse"] <= 0.035 and tr["position_m"]["max"] <= 0.06, tr
+    assert tr["heading_deg"]["rmse"] <= 1.0, tr
+
+
+@pytest.mark.slow
 def test_without_wheel_odometry_or_gyro_the_depth_camera_alone_finds_the_pose(room, tmp_path, capsys):
     from tests.frontend.synthetic_log import copy_log
 
