@@ -27,15 +27,31 @@ S_PIXELS, S_INELIGIBLE, S_INLIERS, S_DROPPED, S_OUTLIERS, S_REMAINING, S_WINDOWS
 
 @njit(cache=True, error_model="numpy")
 def _depth_constraints_nb(flat, min_d, max_d, st, cand):
-    """depthConstraints (thesis Alg. 4): st = 1 for eligible pixels (NaN compares false), 0 else; their indices
-    into cand. Branch-free. Returns their count."""
-    m = 0
-    for i in range(len(flat)):
+    """depthConstraints (thesis Alg. 4): st = 1 for eligible pixels (NaN compares false), 0 else (a vectorised
+    pass); their indices into cand, in image order, eight pixels at a time where st holds eight 1s or eight 0s
+    (one 64-bit word), one at a time, branch-free, elsewhere. Returns their count."""
+    n = len(flat)
+    for i in range(n):
         z = flat[i]
-        ok = (z > min_d) & (z <= max_d)
-        st[i] = ok
+        st[i] = (z > min_d) & (z <= max_d)
+    nw = n // 8
+    words = st[:nw * 8].view(np.uint64)
+    ones = np.uint64(0x0101010101010101)
+    m = 0
+    for w in range(nw):
+        v = words[w]
+        i = w * 8
+        if v == ones:
+            for b in range(8):
+                cand[m + b] = i + b
+            m += 8
+        elif v != 0:
+            for b in range(i, i + 8):
+                cand[m] = b
+                m += st[b]
+    for i in range(nw * 8, n):
         cand[m] = i
-        m += ok
+        m += st[i]
     return m
 
 
@@ -89,16 +105,35 @@ def _gather_window_nb(flat, st, i0, zbar, prm, W, H, wp, stats):
     c_lo, c_hi = max(0, c0 - hw), min(W - 1, c0 + hw)
     stats[S_WINDOWS] += 1
     stats[S_VISITED] += (r_hi - r_lo + 1) * (c_hi - c_lo + 1)
+    words = st[:len(st) - len(st) % 8].view(np.uint64)
+    ones = np.uint64(0x0101010101010101)
+    highs = np.uint64(0x8080808080808080)
     k = 0
     for r in range(r_lo, r_hi + 1):
         base = r * W
         rr = r << 16
-        for c in range(c_lo, c_hi + 1):  # branch-free: eligible (1) becomes consumed (2), listed
-            s = st[base + c]
+        c = c_lo
+        while c <= c_hi:  # eligible (1) becomes consumed (2) and is listed
+            j = base + c
+            if j & 7 == 0 and c + 8 <= c_hi + 1:  # eight pixels at a time (one word of st): all eligible, or none
+                v = words[j >> 3]
+                if v == ones:
+                    for b in range(8):
+                        wp[k + b] = rr | (c + b)
+                    k += 8
+                    words[j >> 3] = ones + ones
+                    c += 8
+                    continue
+                u = v ^ ones
+                if ((u - ones) & ~u & highs) == 0:  # no byte is 1
+                    c += 8
+                    continue
+            s = st[j]  # one at a time, branch-free
             e = s == 1
-            st[base + c] = s + e
+            st[j] = s + e
             wp[k] = rr | c
             k += e
+            c += 1
     return k
 
 
