@@ -130,6 +130,14 @@ class Slam:
         o = self.ocfg
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
         self._measure = not held(o)
+        self._set_reach()
+
+    def _set_reach(self) -> None:
+        """What the loop search needs of the sensor and the front end (backend/loops.py LoopCloser): the field of view,
+        and the front end's reach along the path (its oldest local submap holds 2 × [odometry] submap_keyframes
+        keyframes, at most that many keyframe spacings of travel)."""
+        self.loops.frontend_reach = 2.0 * self.ocfg.submap_keyframes * float(self.frontend.key_distance)
+        self.loops.sensor_fov = float(self._fov[0])
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
@@ -309,6 +317,7 @@ class Slam:
             sp = derived_spacing(MAX_FOV, self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
                                  self.ocfg.coarse_resolution)
             self.select.distance, self.select.angle = sp.distance, sp.angle
+        self._set_reach()
 
     def spacing(self) -> dict:
         """The keyframe and node spacing in force, where each comes from ("derived" or "fixed"), and the scan's field

@@ -91,3 +91,71 @@ def test_repeated_doors_give_no_loop_at_a_look_alike():
     for f in found:
         p = se2.compose(np.array([2.0 + 0.2 * f.a, 0.1, 0.0]), f.rel)
         assert abs(p[0] - true[0]) < 0.2, (p, true, lc.stats)
+
+
+def _small_block(walls, reach, drift: float = 0.5, seed: int = 0, back_at: float = 4.0):
+    """A first pass along the corridor (x 2–10 m: one submap of 40 nodes), 14 m round a block elsewhere (a corridor far
+    away: the next submap and most of the open one), then one node back at the corridor's start heading on as before,
+    its estimate `drift` m off along +x: the place is two submaps back, which `loop_min_separation` skips."""
+    cfg = GraphConfig()
+    rng = np.random.default_rng(seed)
+    g = PoseGraph(cfg)
+    lc = LoopCloser(cfg)
+    lc.frontend_reach = reach
+    lc.sensor_fov = WIDE["fov"]
+
+    def node(est, true, w):
+        i = g.add_node(est)
+        lc.add_node(Keyframe(i, i, i, est, _scan(w, true, rng, **WIDE)), g)
+        return i
+
+    for x in np.arange(2.0, 9.9, 0.2):
+        node(np.array([x, 0.1, 0.0]), np.array([x, 0.1, 0.0]), walls)
+    far = walls + np.array([0.0, 100.0, 0.0, 100.0])
+    for x in np.arange(10.0, 24.0, 0.2):
+        node(np.array([x, 100.1, 0.0]), np.array([x, 100.1, 0.0]), far)
+    true = np.array([back_at, -0.1, 0.0])
+    i = node(true + np.array([drift, 0.0, 0.0]), true, walls)
+    assert len(lc.submaps) - cfg.loop_min_separation <= 0  # the count rule alone leaves no submap to search
+    return lc, lc.search(i, g), true
+
+
+def test_a_place_few_submaps_back_but_beyond_the_front_ends_reach_is_searched_and_closed():
+    """Round a small block back to the start: within the submaps `loop_min_separation` skips, but every node of the
+    first submap lies further back along the path than the front end's local map reaches (4.2 m: 2 × 14 keyframes of
+    0.15 m), so it is searched, and the loop lies at the true place; without the reach (count rule only) nothing is."""
+    walls = _walls(doors_top=[3.5, 7.0, 15.0], doors_bottom=[5.5, 12.0], length=30.0)
+    lc, found, true = _small_block(walls, reach=4.2)
+    assert found, lc.stats
+    for f in found:
+        p = se2.compose(np.array([2.0 + 0.2 * f.a, 0.1, 0.0]), f.rel)
+        assert abs(p[0] - true[0]) < 0.2 and abs(p[1] - true[1]) < 0.05, (p, true)
+    lc0, found0, _ = _small_block(walls, reach=None)
+    assert not found0 and lc0.stats.searches == 0, lc0.stats
+
+
+def test_a_place_driven_on_from_is_not_a_revisit_and_a_place_come_back_to_is():
+    """Straight on along a corridor, the submaps just left lie within the radius but the path from them is the straight
+    way (no revisit: never a candidate); after turning back, the path to the same places exceeds the straight way by
+    more than the front end's reach, and they are."""
+    cfg = GraphConfig()
+    rng = np.random.default_rng(1)
+    walls = _walls(doors_top=[3.5, 7.0, 15.0], doors_bottom=[5.5, 12.0], length=40.0)
+    g = PoseGraph(cfg)
+    lc = LoopCloser(cfg)
+    lc.frontend_reach, lc.sensor_fov = 4.2, WIDE["fov"]
+
+    def node(pose):
+        i = g.add_node(np.asarray(pose, dtype=float))
+        lc.add_node(Keyframe(i, i, i, g.est[i], _scan(walls, g.est[i], rng, **WIDE)), g)
+        return i
+
+    for k in range(85):  # submaps 0 (x 2–9.8 m) and 1 (10–17.8 m) finished, 5 nodes into the open one
+        i = node([2.0 + 0.2 * k, 0.1, 0.0])
+    near = lc._recent_revisits(i, g.est[i], g, len(lc.submaps) - cfg.loop_min_separation)
+    assert [s for s, _ in near] == [0, 1] and all(math.isinf(d) for _, d in near), near
+    for k in range(30):  # turned back: 6 m towards the start
+        i = node([18.8 - 0.2 * k, -0.1, math.pi])
+    near = dict(lc._recent_revisits(i, g.est[i], g, len(lc.submaps) - cfg.loop_min_separation))
+    # the nearest nodes: submap 1's at the same x (0.2 m across), submap 0's last (x 9.8 m)
+    assert abs(near[1] - 0.2) < 1e-6 and abs(near[0] - math.hypot(g.est[i, 0] - 9.8, 0.2)) < 1e-6, (near, g.est[i])
