@@ -109,12 +109,12 @@ def test_room_claim_at_a_corner_is_matched_on_the_walls_near_face(tmp_path, loca
     thickness off, its rays ending on the east wall's far face, which the matcher's field rewards as its near one,
     and the pull towards the prediction holds it there (0.15 m off for 8 s on these seeds). The refinement takes
     the readings through the walls as impossible: then the match is pulled towards the pose whose rays pass through
-    the fewest walls. Measured: found at 7.7 / 9.2 s, then 0.023 / 0.023 m RMSE, at most 0.03 m off."""
+    the fewest walls. Measured: found at 10.0 / 9.2 s, then 0.020 / 0.023 m RMSE, at most 0.041 / 0.057 m off."""
     log, plan = _simulate("room", tmp_path, 50.0, seed=seed)
     r = localized(lambda p: log, plan)
     loc, tr = r.loc, r.m["truth"]["after_convergence"]
     assert loc["converged_s"] is not None and loc["converged_s"] <= 20.0 and not loc["lost"], loc
-    assert tr["position_m"]["rmse"] <= 0.035 and tr["position_m"]["max"] <= 0.06, tr
+    assert tr["position_m"]["rmse"] <= 0.035 and tr["position_m"]["max"] <= 0.08, tr  # the far face: 0.15 m
     assert tr["heading_deg"]["rmse"] <= 1.0, tr
 
 
@@ -373,7 +373,7 @@ def test_office_cross_corridor_with_wheels_off_by_2_percent_is_tracked_along_it(
     """The cross corridor and the north corridor with wheels that count 2 % more than they roll (and turn 1 % more):
     along a corridor the narrow scan fixes the position only at a door's edges, so the refined track must not be
     pulled along the path towards the odometry's prediction, which carries that error from one scan to the next.
-    Measured: found at 8.0 s, then 0.037 m RMSE (seeds 4, 6: 0.045 / 0.036 m; pulled along as hard as across:
+    Measured: found at 8.0 s, then 0.036 m RMSE (seeds 4, 6: 0.048 / 0.039 m; pulled along as hard as across:
     0.056-0.108 m)."""
     log, plan = _simulate("office", tmp_path, 50.0, seed=1, waypoints=[[24, 8], [24, 18], [12, 18]],
                           odom_scale_error=0.02, odom_rot_scale_error=0.01)
