@@ -44,6 +44,12 @@ BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by thr
 # have a chance below LOOP_P (binomial tail) under that 1 %. A consistent synthetic ring: none of 102; a wrong loop
 # under a plain Gaussian kernel: 8 of 102 (p ≈ 1e-4).
 LOOP_P = 0.01
+# Or when the front end could not follow the scans: a match scoring below 0.6 × its running mean is re-searched over a
+# wide window (frontend/odometry.py, the recovery); a consistent run needs that at a slip or a stall of the odometry,
+# on at most 0.5 % of its matches (Intel, FR079, CSAIL, and five of the six unscored real logs: 0–0.45 %), while
+# consecutive scans that overlap too little to be matched (Örebro's CARMEN log: scans 1–3 m apart) need it on 24 %,
+# and its map is then wrong where no revisit can show it. Ten times the worst of the consistent runs:
+RECOVERY_SHARE = 0.05
 LOOP_CHI2 = 9.21  # χ²₂ at 99 %
 KEEP_POINTS = 96  # points kept per keyframe for the check (every k-th of the scan)
 
@@ -64,6 +70,12 @@ class Consistency:
     tolerance_m: float = float("nan")  # the median revisit's tolerance: a grid cell + what the scans' noise hides
     scan_noise_m: float = float("nan")  # the median keyframe's scatter about its own lines (scan_noise)
     loops_refuted: int = 0  # loops missed where the later keyframe's scan fits the earlier ones: false loops left out
+    recovery_share: float = 0.0  # share of the front end's matches it re-searched over a wide window (frontend_unsure)
+
+    def frontend_unsure(self, recoveries: int, matches: int) -> None:
+        """Record the front end's wide re-searches; above RECOVERY_SHARE of its matches the map is likely wrong."""
+        self.recovery_share = recoveries / matches if matches > 0 else 0.0
+        self.bent = self.bent or self.recovery_share > RECOVERY_SHARE
 
     def as_dict(self) -> dict:
         return asdict(self)
@@ -229,9 +241,13 @@ def _misalignment(p: np.ndarray, a: np.ndarray, b: np.ndarray, centre: np.ndarra
 
 
 def warning(c: Consistency) -> str | None:
-    """The console/report line when the map is likely bent, else None."""
+    """The console/report line when the map is likely bent (or wrong: the front end could not follow), else None."""
     if not c.bent:
         return None
+    if c.recovery_share > RECOVERY_SHARE:
+        return (f"the map is likely wrong: the scan matcher had to search a wide window on {100 * c.recovery_share:.0f} % of "
+                f"its matches (a consistent run: under {100 * RECOVERY_SHARE / 10:g} %): consecutive scans overlap too little "
+                f"to be matched (scans far apart, or odometry that jumps), which a revisit may not show")
     loops = (f"; the solution misses {c.loops_disagreeing} of its {c.loops} loops by more than their covariance allows"
              if c.loops_disagreeing else "")
     return (f"the map is likely bent: where the robot came back, its scans lie a median {c.median_m:.3f} m "

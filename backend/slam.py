@@ -444,6 +444,7 @@ class Slam:
         health = stretch_warnings(st, int(stamps[0]), self.health.expect_odom)
         con = consistency((np.array([k.stamp_ns for k in self.keyframes]) - stamps[0]) * 1e-9, self.graph.est,
                           self.key_points, loop_checks(self.graph), cell=self.map_cell)
+        con.frontend_unsure(getattr(self.frontend, "recoveries", 0), getattr(self.frontend, "matches", 0))
         bent = consistency_warning(con)
         health += [bent] if bent else []
         return SlamResult(stamps, poses, local, np.array(self.odom, dtype=float).reshape(-1, 3),

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from kosmap.backend.consistency import RECOVERY_SHARE
 from kosmap.mapping.mapio import save_figure
 from kosmap.mapping.reportdoc import to_html, to_markdown
 
@@ -145,7 +146,9 @@ def consistency_text(c: dict) -> str:
     head = ("no revisits" if med is None or med != med else
             f"revisits {med:.3f} m off (90 %: {c['p90_m']:.3f} m, {c['revisit_keyframes']} keyframes)")
     loops = f", {c['loops_disagreeing']}/{c['loops']} loops missed" if c.get("loops") else ""
-    return head + loops + (": likely bent" if c.get("bent") else "")
+    unsure = (f", the scan matcher re-searched {100 * c['recovery_share']:.0f} % of its matches"
+              if c.get("recovery_share", 0.0) > RECOVERY_SHARE else "")
+    return head + loops + unsure + (": likely bent" if c.get("bent") else "")
 
 
 def odometry_noise_text(n: dict | None) -> str:
