@@ -22,32 +22,6 @@ def _inv_d2(flat, j, step):
 
 
 @njit(cache=True, error_model="numpy")
-def _kth_smallest_nb(a, n, k):
-    """The k-th smallest of a[:n] (a reordered in place): Hoare's quickselect. Hand-written because np.sort and
-    np.percentile order the whole array, and this runs for every plane the coherence test samples."""
-    lo, hi = 0, n - 1
-    while lo < hi:
-        p = a[(lo + hi) // 2]
-        i, j = lo, hi
-        while i <= j:
-            while a[i] < p:
-                i += 1
-            while a[j] > p:
-                j -= 1
-            if i <= j:
-                a[i], a[j] = a[j], a[i]
-                i += 1
-                j -= 1
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
-        else:
-            break
-    return a[k]
-
-
-@njit(cache=True, error_model="numpy")
 def _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, tpix):
     """The sample's points within ε of (n, d), copied to tx, ty, tz (pixels to tpix). Returns (their count, their
     residual sum of squares)."""
@@ -63,11 +37,16 @@ def _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, tpix):
 
 
 @njit(cache=True, error_model="numpy")
-def _noise_sigma_nb(pix, m, flat, W, H, noise):
-    """The sensor's depth noise σ in the pixels pix[:m]: the upper quartile of the second differences of inverse
-    depth along the row and the column (_inv_d2); robust: the upper quartile of |N(0, 6σ²)| is 1.15·√6·σ, step
-    edges among them do not count, and a sensor that quantises depth (disparity steps: many zero differences)
-    still shows its step. −1 when fewer than 12 differences."""
+def _spread_beyond_noise_nb(pix, m, flat, W, H, noise, ss):
+    """Whether m points with residual sum of squares ss spread about their plane beyond twice the sensor's depth
+    noise σ in their pixels pix[:m] (ss ≥ m·(2σ)²). σ: the upper quartile of the second differences of inverse
+    depth along the row and the column (_inv_d2), / (1.15·√6); robust: the upper quartile of |N(0, 6σ²)| is
+    1.15·√6·σ, step edges among them do not count, and a sensor that quantises depth (disparity steps: many zero
+    differences) still shows its step. False when fewer than 12 differences.
+    The quartile is not selected but compared: with t the quartile that makes ss = m·(2σ)², counting the
+    differences ≤ t tells on which side of t the two order statistics around the quartile lie; only when t falls
+    between them is the quartile interpolated, from the largest difference ≤ t and the smallest above it (a pass
+    instead of a quickselect, the same answer)."""
     nn = 0
     for s in range(m):
         q = pix[s]
@@ -84,17 +63,26 @@ def _noise_sigma_nb(pix, m, flat, W, H, noise):
                 noise[nn] = v
                 nn += 1
     if nn < 12:
-        return -1.0
-    # the upper quartile as np.percentile has it (linear between the two order statistics around it)
+        return False
+    k = 1.15 * np.sqrt(6.0)
+    t = k * np.sqrt(ss / m) / 2.0
+    # the upper quartile as np.percentile has it: linear between the order statistics lo and lo + 1 (< nn)
     pos = 0.75 * (nn - 1)
     lo = int(pos)
-    q_lo = _kth_smallest_nb(noise, nn, lo)
-    q_hi = q_lo
-    if lo + 1 < nn:  # the next order statistic: the smallest above position lo after the selection
-        q_hi = noise[lo + 1]
-        for k in range(lo + 2, nn):
-            q_hi = min(q_hi, noise[k])
-    return (q_lo + (pos - lo) * (q_hi - q_lo)) / (1.15 * np.sqrt(6.0))
+    below, a, b = 0, -np.inf, np.inf  # count ≤ t, the largest ≤ t, the smallest above t
+    for i in range(nn):
+        v = noise[i]
+        if v <= t:
+            below += 1
+            a = max(a, v)
+        else:
+            b = min(b, v)
+    if below >= lo + 2:  # both order statistics ≤ t: the quartile too
+        return True
+    if below <= lo:  # the lower one above t
+        return False
+    sigma = (a + (pos - lo) * (b - a)) / k
+    return not ss < m * (2.0 * sigma) ** 2
 
 
 @njit(cache=True, error_model="numpy")
@@ -181,7 +169,7 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, cam, nx, ny, nz, d, eps, b
        max(3°, 3 standard errors), the plane is a bridge; it shrinks to the most populated layer of its inliers
        along that normal (±ε/3, least-squares refit): one of the surfaces.
     2. else the spread: one surface's inliers scatter about their plane by the sensor's noise σ, which the image
-       itself gives in the same pixels (_noise_sigma_nb); beyond 2σ, the strongest sub-plane at ε/3 (RANSAC on the
+       itself gives in the same pixels (_spread_beyond_noise_nb); beyond 2σ, the strongest sub-plane at ε/3 (RANSAC on the
        same inliers, least-squares refit), when it is another plane (tilted by > acos(cos_split) or ε/3 off at the
        inliers' centre), is one of the surfaces.
     The window's next plane finds the others. cam: (fx, fy, cx, cy). Returns (how: 0 one surface, 1 a layer along
@@ -200,8 +188,7 @@ def _split_bridge_nb(sx, sy, sz, pix, ns, flat, W, H, cam, nx, ny, nz, d, eps, b
                 if ad < 0:
                     ax, ay, az, ad = -ax, -ay, -az, -ad
                 return 1, ax, ay, az, ad
-    sigma = _noise_sigma_nb(uidx, m, flat, W, H, noise)
-    if sigma < 0 or ss < m * (2.0 * sigma) ** 2:
+    if not _spread_beyond_noise_nb(uidx, m, flat, W, H, noise, ss):
         return 0, nx, ny, nz, d
     # hypotheses scored on the whole sample (≤ 256 points): a box top may be a small share of a bridging plane's
     # inliers (docs/planes.md)
