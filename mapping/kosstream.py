@@ -211,6 +211,15 @@ class KosStream:
         return KosStep(step_frames[0].stamp_ns, scans, step_frames, laser)
 
 
+def run_gravity(log_path: Path, cfg: Config, run: ScanRun) -> dict:
+    """The run's gravity (mapping/gravitymount.py: the mount, the IMU or the frames), recorded in `run` with its
+    warnings; returns the gravity-aligned depth-camera mounts every KosStream of the run is given."""
+    grav = resolve_gravity(log_path, cfg)
+    run.gravity = grav
+    run.warnings.extend(grav.warnings())
+    return grav.mounts
+
+
 def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = None,
               on_frame: Callable[[KosFrame], None] | None = None, workers: int = 0) -> Iterator[KosStep]:
     """Stream the log once: FSPF+ → KOS per depth frame (in `workers` processes; 0 = here), cameras merged per
@@ -224,11 +233,9 @@ def kos_steps(log_path: Path, cfg: Config, run: ScanRun, limit: int | None = Non
         run.total_frames = sum(info.count(t) for t in det.depth)
         if limit is not None:
             run.total_frames = min(run.total_frames, limit * len(det.depth))
-        grav = resolve_gravity(log_path, cfg)
-        run.gravity = grav
-        run.warnings.extend(grav.warnings())
+        mounts = run_gravity(log_path, cfg, run)
         with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-            stream = KosStream(det, cfg, run, pool, limit, on_frame, mounts=grav.mounts)
+            stream = KosStream(det, cfg, run, pool, limit, on_frame, mounts=mounts)
             for rec in log.read(det.wanted()):
                 yield from stream.feed(rec)
                 if stream.stopped:

@@ -162,7 +162,7 @@ def read_input(path: str | Path, cfg, source: str, progress: Callable[[float, fl
 
 def _read_kos(log, det, cfg, other, progress, total, workers, motion):
     from kosmap.frontend.odometry import scan_points_base
-    from kosmap.mapping.kosstream import KosStream, ScanRun
+    from kosmap.mapping.kosstream import KosStream, ScanRun, run_gravity
     from kosmap.mapping.runtime.framepool import FramePool
 
     lc = cfg.localize
@@ -188,7 +188,8 @@ def _read_kos(log, det, cfg, other, progress, total, workers, motion):
     run = ScanRun()
     min_period = int(1e9 / lc.depth_rate) if lc.depth_rate > 0 else 0
     with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-        stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False, keep=_FrameGate(lc, motion))
+        stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False, keep=_FrameGate(lc, motion),
+                           mounts=run_gravity(log.path, cfg, run))  # the mounts `kosmap build` uses
         for rec in log.read(det.wanted()):
             if other(rec):
                 continue

@@ -21,7 +21,7 @@ from kosmap.frontend.odometry import OdometryConfig, scan_points_base
 from kosmap.frontend.records import ImuSamples, Odometry, OdometrySamples, Scan, Transforms
 from kosmap.mapping.config import Config
 from kosmap.mapping.jsonsafe import json_safe
-from kosmap.mapping.kosstream import KosStream, ScanRun
+from kosmap.mapping.kosstream import KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
 from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
 
@@ -189,7 +189,8 @@ def _run_slam_kos(path, cfg, progress, keep_scans: bool, max_seconds: float | No
 
         topics = det.wanted()
         with FramePool(cfg.fspf, cfg.depth, cfg.kos, workers) as pool:
-            stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False)
+            stream = KosStream(det, cfg, run, pool, min_period_ns=min_period, fuse=False,
+                               mounts=run_gravity(path, cfg, run))  # the mounts `kosmap build` uses
             now = None
             for rec in log.read(topics):
                 if rec.stamp_ns and (now is None or rec.stamp_ns > now):

@@ -32,9 +32,8 @@ from kosmap.frontend.odometry import scan_points_base
 from kosmap.frontend.records import Imu, ImuSamples, Odometry, OdometrySamples, Scan, Transform, Transforms
 from kosmap.mapping.build.spill import Spill
 from kosmap.mapping.config import Config
-from kosmap.mapping.gravitymount import resolve_gravity
 from kosmap.mapping.lasercal import KosLaserCal
-from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun
+from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
 from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns
 
@@ -172,11 +171,8 @@ class ReadPass:
         csv_path = self.out / "stats.csv.partial"
         if self.pool is not None:
             min_period = int(1e9 / self.bcfg.depth_rate) if self.bcfg.depth_rate > 0 else 0
-            grav = resolve_gravity(log, self.cfg)
-            self.run.gravity = grav
-            self.run.warnings.extend(grav.warnings())
             self.stream = KosStream(self.det, self.cfg, self.run, self.pool, on_frame=self.on_frame, cloud=self.cloud,
-                                    min_period_ns=min_period, fuse=False, mounts=grav.mounts)
+                                    min_period_ns=min_period, fuse=False, mounts=run_gravity(log, self.cfg, self.run))
         t_begin = time.perf_counter()
         cpu0 = time.process_time()
         lg = open_log(log, self.cfg.topics.on_damage)
