@@ -52,7 +52,7 @@ class GraphConfig(StageConfig):
     submap_nodes: int = param(40, lo=2, doc="nodes per loop-closure submap")
     loop_search_radius: float = param(4.0, lo=0.0, doc="candidate submaps with a node within this distance, plus 3σ of the pose uncertainty accumulated since the last accepted loop (backend/loops.py DriftModel.radius)", unit="m")
     loop_max_candidates: int = param(8, lo=1, doc="search at most this many candidate submaps per node, nearest first")
-    loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it, but where the robot came back to them along a path longer than the straight way by the front end's reach (backend/loops.py LoopCloser._recent_revisits)")
+    loop_min_separation: int = param(2, lo=1, doc="skip the node's own submap and this many before it")
     loop_search_every: int = param(2, lo=1, doc="search for loops at every n-th node")
     loop_linear_window: float = param(1.0, lo=0.0, doc="branch-and-bound half window in x and y", unit="m")
     loop_max_linear_window: float = param(3.0, lo=0.0, doc="the window grows with the drift since the last loop up to this (backend/loops.py DriftModel)", unit="m")

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import math
 import time
-from array import array
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 
@@ -123,7 +122,6 @@ class LoopStats:
     rejected_ambiguous: int = 0  # a distinct second peak nearly as good (ratio test)
     rejected_degenerate: int = 0  # a direction the match does not fix
     rejected_edge: int = 0  # the best pose lay on the search window's edge (the true peak may lie outside)
-    rejected_not_revisit: int = 0  # a recent submap matched where the robot drove on from it, not where it came back
     stacked_queries: int = 0
     widened: int = 0  # searches whose window the drift since the last loop widened beyond loop_linear_window
     widest_window: float = 0.0  # the widest linear half window searched (m)
@@ -258,13 +256,9 @@ class LoopCloser:
         self._recent: deque[tuple[int, np.ndarray, np.ndarray, bool]] = deque()
         self.drift = DriftModel(self.cfg)
         self.noise: dict[int, float] = {}  # node id → its scan's range scatter (scan_noise), open submap only
-        # the front end's own reach in travel (Slam sets it: the keyframes its oldest local submap holds × their
-        # spacing); a place further back than this along the path is no longer matched by the front end
-        self.frontend_reach: float | None = None
         # the sensor's field of view (rad; Slam sets it: a laser's beams × angle_increment, else its returns' span):
         # a scan of a wide sensor is wide whatever share of its bearings returned (an open room beyond a 4 m URG)
         self.sensor_fov = 0.0
-        self._travel = array("d")  # node id → front-end travel from the first node (m)
 
     def add_node(self, kf: Keyframe, graph: PoseGraph) -> None:
         """Register a keyframe (after the graph has its node); finish a submap every `submap_nodes` nodes."""
@@ -282,10 +276,6 @@ class LoopCloser:
         self.points[kf.id] = pts
         narrow = c.loop_query == "stack" or (bearing_coverage(kf.points) < NARROW_COVERAGE
                                              and self.sensor_fov < NARROW_COVERAGE * 2 * math.pi)
-        if self._recent:
-            self._travel.append(self._travel[-1] + math.hypot(*(np.asarray(kf.local_pose[:2]) - self._recent[-1][1][:2])))
-        else:
-            self._travel.append(0.0)
         self.drift.travel_to(np.asarray(kf.local_pose, dtype=float))
         self._recent.append((kf.id, np.asarray(kf.local_pose, dtype=float), pts, narrow))
         self._trim_recent()
@@ -387,11 +377,10 @@ class LoopCloser:
         the drift model's radius, DriftModel.radius), nearest first."""
         c = self.cfg
         last = len(self.submaps) - c.loop_min_separation
-        narrow = bool(self._recent) and self._recent[-1][0] == node and self._recent[-1][3]
-        if last <= 0 and (narrow or self.frontend_reach is None or not self.submaps):
+        if last <= 0:
             return []
         p = graph.est[node]
-        if narrow:
+        if self._recent and self._recent[-1][0] == node and self._recent[-1][3]:
             # a narrow scan: round each submap's centre, as far as the window's growth reaches. Its stacked query fits
             # look-alikes too readily for the wider reach (simulated office, KOS SLAM: ATE 0.127 m, against ≤ 0.08 m
             # with this reach; tests/backend/test_consistency.py)
@@ -404,44 +393,16 @@ class LoopCloser:
         else:
             # the distance to the nearest node the submap was built at (current estimates): a submap is a stretch of
             # travel, and its centre can lie metres from where a robot coming back meets that stretch
-            dist = np.zeros(0)
-            if last > 0:
-                if len(self._node_starts) != last:
-                    self._node_ids = np.concatenate([self.submaps[i].node_ids for i in range(last)])
-                    self._node_starts = np.cumsum([0] + [len(self.submaps[i].node_ids) for i in range(last - 1)])
-                est = graph.est[self._node_ids]
-                dist = np.minimum.reduceat(np.hypot(est[:, 0] - p[0], est[:, 1] - p[1]), self._node_starts)
+            if len(self._node_starts) != last:
+                self._node_ids = np.concatenate([self.submaps[i].node_ids for i in range(last)])
+                self._node_starts = np.cumsum([0] + [len(self.submaps[i].node_ids) for i in range(last - 1)])
+            est = graph.est[self._node_ids]
+            dist = np.minimum.reduceat(np.hypot(est[:, 0] - p[0], est[:, 1] - p[1]), self._node_starts)
             radius = self.drift.radius()
-            recent = self._recent_revisits(node, p, graph, last)
-            if recent:
-                dist = np.concatenate([dist, [d for _, d in recent]])
         self.stats.widest_radius = max(self.stats.widest_radius, radius)
         near = np.flatnonzero(dist <= radius)
         near = near[np.argsort(dist[near])][: c.loop_max_candidates]
         return [self.submaps[i] for i in near]
-
-    def _recent_revisits(self, node: int, p: np.ndarray, graph: PoseGraph, last: int) -> list[tuple[int, float]]:
-        """The finished submaps that `loop_min_separation` skips (the last few), each with the distance to its nearest
-        node that the robot came back to (inf where none): the path from that node here is longer than the straight way
-        back by more than the front end's reach (`frontend_reach`), so the front end no longer holds the place and the
-        robot did not simply drive on from it (a straight corridor: path = distance). A robot that goes round a small
-        block comes back within the submaps the count skips (Mines exp1: at its start after 21 m of travel).
-        [(submap index, distance)] in index order from max(last, 0)."""
-        if self.frontend_reach is None:
-            return []
-        t_now = self._travel[node]
-        out = []
-        for i in range(max(last, 0), len(self.submaps)):
-            ids = self.submaps[i].node_ids
-            d = np.hypot(*(graph.est[ids, :2] - p[:2]).T)
-            path = t_now - np.asarray([self._travel[j] for j in ids])
-            back = path - d > self.frontend_reach  # as _came_back
-            out.append((i, float(d[back].min()) if back.any() else math.inf))
-        return out
-
-    def _came_back(self, node: int, member: int, distance: float) -> bool:
-        """The robot came back to `member` at `node`: the path between exceeds the straight way by the front end's reach."""
-        return self._travel[node] - self._travel[member] - distance > (self.frontend_reach or 0.0)
 
     def search(self, node: int, graph: PoseGraph) -> list[LoopConstraint]:
         """Verify every candidate submap for this node; return the accepted constraints (not yet in the graph)."""
@@ -455,7 +416,6 @@ class LoopCloser:
             return found
         narrow = bool(self._recent) and self._recent[-1][0] == node and self._recent[-1][3]
         nb = int(self.cfg.loop_map_neighbours) if narrow else 0
-        recent_from = len(self.submaps) - self.cfg.loop_min_separation  # submaps from here on: _recent_revisits
         for sm in cands:
             guess = se2.between(graph.est[sm.anchor], graph.est[node])
             f = self.fields(sm, graph, nb)
@@ -466,17 +426,12 @@ class LoopCloser:
                 continue
             lc = self.verify(sm, pts, guess, f, narrow, self.noise.get(node, float("nan")))
             if lc is not None:
+                self.drift.corrected(lc[0], guess)
                 # Tie the loop to the member whose pose is nearest the match, not to the anchor: the submap is
                 # only as rigid as the front end was while it was built, so the constraint is truest nearby.
                 pose = lc[0]
                 j = int(np.argmin(np.hypot(*(sm.member_poses[:, :2] - pose[:2]).T))) if self.cfg.loop_nearest_member else 0
                 rel = se2.between(sm.member_poses[j], pose)
-                if sm.index >= recent_from and not self._came_back(node, sm.node_ids[j], float(np.hypot(*rel[:2]))):
-                    # a recent submap matched where the robot drove on from it (its last nodes): the front end's track
-                    self.stats.accepted -= 1
-                    self.stats.rejected_not_revisit += 1
-                    continue
-                self.drift.corrected(lc[0], guess)
                 found.append(LoopConstraint(sm.node_ids[j], node, rel, lc[1], lc[2], sm.index, lc[3], lc[4],
                                             self.loose_covariance(lc[5])))
         found = self._consistent(found, graph)

@@ -130,13 +130,10 @@ class Slam:
         o = self.ocfg
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
         self._measure = not held(o)
-        self._set_reach()
+        self._set_sensor_fov()
 
-    def _set_reach(self) -> None:
-        """What the loop search needs of the sensor and the front end (backend/loops.py LoopCloser): the field of view,
-        and the front end's reach along the path (its oldest local submap holds 2 × [odometry] submap_keyframes
-        keyframes, at most that many keyframe spacings of travel)."""
-        self.loops.frontend_reach = 2.0 * self.ocfg.submap_keyframes * float(self.frontend.key_distance)
+    def _set_sensor_fov(self) -> None:
+        """What the loop search needs of the sensor (backend/loops.py LoopCloser): its field of view."""
         self.loops.sensor_fov = float(self._fov[0])
 
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
@@ -317,7 +314,7 @@ class Slam:
             sp = derived_spacing(MAX_FOV, self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
                                  self.ocfg.coarse_resolution)
             self.select.distance, self.select.angle = sp.distance, sp.angle
-        self._set_reach()
+        self._set_sensor_fov()
 
     def spacing(self) -> dict:
         """The keyframe and node spacing in force, where each comes from ("derived" or "fixed"), and the scan's field

@@ -169,6 +169,25 @@ def test_bearing_coverage_tells_a_narrow_camera_from_a_laser():
     assert bearing_coverage(narrow) < 0.25 and bearing_coverage(wide) > 0.7
 
 
+def test_a_wide_lasers_scan_with_few_returns_stays_wide():
+    """A 240° URG-04LX (4 m) in a room open on one side returns on fewer than 40 % of the 10° sectors, as a narrow camera
+    scan does (the Mines logs: 31–39 % at their revisits); the sensor's own field of view keeps it a wide scan (its own
+    query, the wide candidates' radius); a scan of no known sensor (field of view 0) is taken as narrow."""
+    rng = np.random.default_rng(0)
+    walls = np.array([(-1.0, 2.0, 3.0, 2.0), (3.0, 1.0, 3.0, -1.0)])  # a wall to the left, a cupboard ahead, open elsewhere
+    pts = _scan(walls, np.array([0.0, 0.0, 0.0]), rng, beams=682, rmax=4.0, fov=math.radians(240.0))
+    assert bearing_coverage(pts) < 0.4, bearing_coverage(pts)
+    kinds = []
+    for fov in (math.radians(240.0), 0.0):
+        g = PoseGraph(_cfg())
+        lc = LoopCloser(_cfg())
+        lc.sensor_fov = fov
+        i = g.add_node(np.zeros(3))
+        lc.add_node(Keyframe(i, i, 0, np.zeros(3), pts), g)
+        kinds.append(lc._recent[-1][3])
+    assert kinds == [False, True]
+
+
 def test_field_memory_is_bounded_by_the_cache():
     # a 100 m corridor, 25 submaps, each searched: fields live only in the LRU cache (4 entries), points stay
     walls = _walls(doors_top=list(np.arange(3.0, 100.0, 7.0)), length=100.0)
