@@ -20,7 +20,6 @@ from kosmap.backend.likelihood_field import MapField, map_field
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
-from kosmap.mapping.localize_claim import ClaimCheck, unique_or_reseed
 from kosmap.mapping.localize_config import LocalizeConfig
 from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round
 
@@ -219,9 +218,8 @@ class _Filter:
         if self.updates % c.resample_interval == 0 or lost:
             self.resample(lost)
 
-    def decide(self, est, update: bool, windowed: bool, conv, unique=None) -> bool:
-        """Whether the scan's pose is claimed (tracking), and the filter's state moved on accordingly. `unique`: the
-        test a new claim at a pose must pass (mapping/localize_claim.py; None: none)."""
+    def decide(self, est, update: bool, windowed: bool, conv) -> bool:
+        """Whether the scan's pose is claimed (tracking), and the filter's state moved on accordingly."""
         c = self.cfg
         # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
         # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
@@ -233,10 +231,7 @@ class _Filter:
         if update:
             self.tight = self.tight + 1 if (held if self.found else whole) else 0
         if not windowed:
-            claim = self.tight >= c.converged_updates
-            if claim and not (held and self.tracking) and unique is not None and not unique(est.pose):
-                claim, self.tight = False, 0  # another place fits as well: a look-alike, no claim yet
-            converged = (held and self.tracking) or claim
+            converged = (held and self.tracking) or self.tight >= c.converged_updates
         else:  # claimed first, and after a restart, only where the window's search confirms it. A claimed pose is
             # kept while the scans fit as well as they did (w_fast/w_slow), however the particles spread: along a
             # corridor the narrow scan sees two parallel walls, and the odometry's noise spreads them along it, in
@@ -278,7 +273,6 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     # claim (the whole set tight for converged_updates) holds on the laser logs measured (docs/localize.md)
     ws = WindowSearch(f, cfg) if inp.has_odom and initial_pose is None and inp.source == "kos" else None
     flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float), ws is not None)
-    uq = ClaimCheck(f, cfg) if ws is None and initial_pose is None else None  # a tight set may hold a look-alike
     n = len(inp.stamps_ns)
     out = {k: np.zeros(n) for k in ("sx", "sy", "share", "score", "inl", "np", "ratio")}
     poses = np.zeros((n, 3))
@@ -322,8 +316,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        converged = flt.decide(est, update, ws is not None, conv,
-                               None if uq is None else (lambda p, pts=pts: unique_or_reseed(uq, flt, pts, p)))
+        converged = flt.decide(est, update, ws is not None, conv)
         status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
         pose = pose_f
         if converged and cfg.refine and len(pts) >= cfg.min_points:
