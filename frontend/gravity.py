@@ -260,17 +260,29 @@ class GravityTracker:
     floor: FloorTracker = field(default_factory=FloorTracker)
 
     def update(self, planes: Planes, stamp: float = float("nan"), depth: np.ndarray | None = None,
-               camera=None) -> np.ndarray:
+               camera=None, step: float | None = None) -> np.ndarray:
         """Up after a frame's planes (and its depth image and camera, when given, for the floor's confirmation:
-        no point may lie below the floor)."""
+        no point may lie below the floor); the floor tracked under it (track_floor; `step` as there)."""
         up, _ = dominant_up(planes.normals, planes.counts, self.up, self.max_tilt_deg)
         if up is not None:
             self.up = up
             self.frames += 1
-            deep = deepest(depth, camera, up) if depth is not None else float("nan")
-            self.floor.update(*level_planes(planes, up), stamp, deep, wall_spans(planes, up))
-            self.height = self.floor.known()
+            self.track_floor(planes, up, stamp, depth, camera, step=step)
         return self.up
+
+    def track_floor(self, planes: Planes, up: np.ndarray, stamp: float = float("nan"),
+                    depth: np.ndarray | None = None, camera=None, walls: bool = True,
+                    step: float | None = None) -> float:
+        """The floor tracked (FloorTracker) with a frame's level planes under `up`, whatever gave up (the frames,
+        an IMU, a gravity file): its lowest points when the depth image and camera are given, its walls rising
+        from the floor when `walls`; `step`, the ground band ([fspf] ground_max_height; None keeps the last).
+        Returns the camera's height above the floor, NaN until the floor is confirmed (also kept in `height`)."""
+        if step is not None:
+            self.floor.step = step
+        deep = deepest(depth, camera, up) if depth is not None else float("nan")
+        self.floor.update(*level_planes(planes, up), stamp, deep, wall_spans(planes, up) if walls else None)
+        self.height = self.floor.known()
+        return self.height
 
 
 def deepest(depth: np.ndarray, camera, up: np.ndarray, share: float = 0.005, stride: int = 4,

@@ -21,7 +21,7 @@ import numpy as np
 
 from kosmap.frontend.camera import gravity_up
 from kosmap.frontend.fspf import filter_planes, frame_seed
-from kosmap.frontend.gravity import GravityTracker, deepest, gravity_mount, level_planes
+from kosmap.frontend.gravity import GravityTracker, gravity_mount
 from kosmap.frontend.mountcal import pitch_roll
 from kosmap.frontend.records import Transform
 from kosmap.mapping.planes.frames import GRAVITY_WORDS, Override, log_frames
@@ -95,17 +95,17 @@ def resolve_gravity(path: Path, cfg, frames: int = SAMPLE_FRAMES) -> GravityMoun
         for item in src.frames:
             if item.frame_id not in seen:
                 seen[item.frame_id] = (item.mount, GravityTracker(up=gravity_up(item.mount)), [], [])
-                seen[item.frame_id][1].floor.step = cfg.fspf.ground_max_height  # as mapping/planes/classes.py
             _, tracker, ups, heights = seen[item.frame_id]
             planes = filter_planes(item.depth, item.camera, keep_all, cfg.depth, item.mount,
                                    seed=frame_seed(cfg.fspf, item.index))
             stamp = item.stamp_ns * 1e-9
+            step = cfg.fspf.ground_max_height  # the ground band, as mapping/planes/classes.py tracks the floor
             if item.gravity == "imu" and item.up is not None:
                 up = np.asarray(item.up, float)
-                tracker.floor.update(*level_planes(planes, up), stamp, deepest(item.depth, item.camera, up))
+                tracker.track_floor(planes, up, stamp, item.depth, item.camera, walls=False, step=step)
             else:
                 n = tracker.frames
-                up = tracker.update(planes, stamp, item.depth, item.camera)
+                up = tracker.update(planes, stamp, item.depth, item.camera, step=step)
                 if tracker.frames == n:  # no level plane family in this frame
                     continue
             ups.append(up)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from kosmap.frontend.camera import OPTICAL_ROTATION, gravity_up
 from kosmap.frontend.fspf import filter_planes, frame_seed
-from kosmap.frontend.gravity import GravityTracker, deepest, drop_classes, level_planes, reclassify
+from kosmap.frontend.gravity import GravityTracker, drop_classes, reclassify
 from kosmap.frontend.mountcal import MountCalibrator
 from kosmap.frontend.planes import Planes
 from kosmap.frontend.records import Transform
@@ -38,16 +38,15 @@ class Classes:
             self.first_mount = (item.mount, item.gravity)
         self.used[item.gravity] = self.used.get(item.gravity, 0) + 1
         fspf = self.cfg.fspf
-        self.tracker.floor.step = fspf.ground_max_height
         self.floor_m = float("nan")
         if item.gravity == "frames":
-            up = self.tracker.update(planes, item.stamp_ns * 1e-9, item.depth, item.camera)
+            up = self.tracker.update(planes, item.stamp_ns * 1e-9, item.depth, item.camera,
+                                     step=fspf.ground_max_height)
             self.floor_m = self.tracker.height
             return reclassify(planes, up, self.tracker.height, fspf)
         if item.gravity in ("file", "imu"):
-            self.tracker.floor.update(*level_planes(planes, item.up), item.stamp_ns * 1e-9,
-                                      deepest(item.depth, item.camera, item.up))
-            self.tracker.height = self.floor_m = self.tracker.floor.known()
+            self.floor_m = self.tracker.track_floor(planes, item.up, item.stamp_ns * 1e-9, item.depth, item.camera,
+                                                    walls=False, step=fspf.ground_max_height)
             return reclassify(planes, item.up, self.tracker.height, fspf)
         self.calibrator.add(planes.normals, planes.offsets, planes.counts, gravity_up(item.mount))
         self.floor_m = float(item.mount.translation[2])
