@@ -20,6 +20,7 @@ from kosmap.backend.likelihood_field import MapField, map_field
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
+from kosmap.mapping.localize_claim import ClaimCheck, unique_or_reseed
 from kosmap.mapping.localize_config import LocalizeConfig
 from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round
 
@@ -218,8 +219,9 @@ class _Filter:
         if self.updates % c.resample_interval == 0 or lost:
             self.resample(lost)
 
-    def decide(self, est, update: bool, windowed: bool, conv) -> bool:
-        """Whether the scan's pose is claimed (tracking), and the filter's state moved on accordingly."""
+    def decide(self, est, update: bool, windowed: bool, conv, unique=None) -> bool:
+        """Whether the scan's pose is claimed (tracking), and the filter's state moved on accordingly. `unique`: the
+        test a new claim at a pose must pass (mapping/localize_claim.py; None: none)."""
         c = self.cfg
         # a pose is first claimed when the whole set has been tight for converged_updates filter updates in a row;
         # it is held, or claimed again after being lost, while one mode holds most of the weight, tight: augmented
@@ -231,7 +233,10 @@ class _Filter:
         if update:
             self.tight = self.tight + 1 if (held if self.found else whole) else 0
         if not windowed:
-            converged = (held and self.tracking) or self.tight >= c.converged_updates
+            claim = self.tight >= c.converged_updates
+            if claim and not (held and self.tracking) and unique is not None and not unique(est.pose):
+                claim, self.tight = False, 0  # another place fits as well: a look-alike, no claim yet
+            converged = (held and self.tracking) or claim
         else:  # claimed first, and after a restart, only where the window's search confirms it. A claimed pose is
             # kept while the scans fit as well as they did (w_fast/w_slow), however the particles spread: along a
             # corridor the narrow scan sees two parallel walls, and the odometry's noise spreads them along it, in
@@ -269,10 +274,13 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     """Localize every scan of `inp` (mapping/locinput.py LocalizationInput) in the map `f`."""
     t_start = time.perf_counter()
     rng = np.random.default_rng(cfg.seed)
-    # the window widens a narrow depth camera's view; a laser's 270° scan is wide by itself, and its filter's own
-    # claim (the whole set tight for converged_updates) holds on the laser logs measured (docs/localize.md)
+    # the window widens a narrow depth camera's view; a laser's scan is wide by itself, and its filter's own claim
+    # (the whole set tight for converged_updates) stands once the scan fits no other place (mapping/localize_claim.py)
     ws = WindowSearch(f, cfg) if inp.has_odom and initial_pose is None and inp.source == "kos" else None
     flt = _Filter(f, cfg, rng, None if initial_pose is None else np.asarray(initial_pose, float), ws is not None)
+    # a laser's tight set may hold a look-alike: its claim must be the one place the scan fits (a narrow camera's
+    # single view without odometry is that rarely; with odometry its window's search decides)
+    uq = ClaimCheck(f, cfg) if ws is None and initial_pose is None and inp.source == "laser" else None
     n = len(inp.stamps_ns)
     out = {k: np.zeros(n) for k in ("sx", "sy", "share", "score", "inl", "np", "ratio")}
     poses = np.zeros((n, 3))
@@ -316,7 +324,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
-        converged = flt.decide(est, update, ws is not None, conv)
+        converged = flt.decide(est, update, ws is not None, conv,
+                               None if uq is None else (lambda p, pts=pts: unique_or_reseed(uq, flt, pts, p)))
         status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
         pose = pose_f
         if converged and cfg.refine and len(pts) >= cfg.min_points:

@@ -1,0 +1,75 @@
+"""Whether the place a particle filter is about to claim is the only place in the map its scan fits.
+
+A particle set can collapse, tight and sure, onto one of several look-alike places (a corridor of identical rooms
+whose doors repeat at one pitch): a tight set says the particles agree with each other, not that the map holds no
+other place like theirs, and once resampling has dropped the others the filter cannot get them back
+(Thrun, Burgard & Fox, *Probabilistic Robotics* §8.3.4). So before the filter's own claim (the whole set tight for
+`converged_updates`, mapping/localize.py) the scan is searched over the whole map by the window search's correlative
+search (backend/globalsearch.py, Olson 2009), the filter's pose competing as one more place, and each place scored
+by the likelihood field model over the scan's end points a correlation length (2σ_hit) apart, which are about
+independent: the measurement noise and the number of independent readings set how far apart two places' scores
+must be before one of them is sure. The claim stands when the posterior over the distinct places gives the filter's
+place at least `claim_p` — the test the depth camera's window search claims by (mapping/localize_search.py), here on
+one wide scan. Otherwise nothing is claimed and the particles are put back round every place still in the running,
+so that the one the data single out later (the corridor's junction in view) is still held.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from kosmap.backend import globalsearch as gs
+from kosmap.backend.likelihood_field import MapField
+from kosmap.mapping.localize_config import LocalizeConfig
+from kosmap.mapping.localize_search import Verdict, _merge, _polish, _profile
+
+
+@dataclass
+class Uniqueness:
+    """One check: the distinct places the scan fits (best first), their posterior, and the claimed place's share."""
+
+    poses: np.ndarray  # (K, 3)
+    prob: np.ndarray  # (K,)
+    claimed_p: float  # posterior of the place the filter would claim (0: the search lost it)
+    unique: bool  # claimed_p ≥ claim_p
+
+
+class ClaimCheck:
+    """The uniqueness test of a claim, on the scan the claim is made at."""
+
+    def __init__(self, f: MapField, cfg: LocalizeConfig) -> None:
+        self.f, self.cfg = f, cfg
+        self.sf = gs.search_field(f.distance, f.free, f.origin, f.resolution, cfg.search_step, cfg.search_fine)
+        self.checks: list[Uniqueness] = []
+
+    def test(self, pts: np.ndarray, pose: np.ndarray, z_max: float) -> Uniqueness:
+        """The scan `pts` (N×2, robot frame) over the whole map, the filter's `pose` one of the places."""
+        c, f = self.cfg, self.f
+        pts = np.asarray(pts, float)[:, :2]
+        apart_yaw = math.radians(c.search_apart_deg)
+        coarse = pts[gs.thin(pts, c.search_fine)]
+        cands = gs.global_search(self.sf, coarse, c.search_keep, c.search_apart, apart_yaw, c.search_fine)
+        poses = np.array([_polish(f, coarse, k.pose) for k in cands] + [_polish(f, coarse, pose)])
+        keep = gs.thin(pts, 2.0 * c.sigma_hit)  # a correlation length apart: about independent readings
+        views = np.zeros((len(keep), 2))  # one scan, seen from the robot
+        through = math.log(c.z_through / z_max) if c.z_through > 0 else -math.inf
+        poses, ll = _profile(f, poses, pts[keep], views, through, c.through_tol)
+        poses, prob = _merge(poses, gs.posterior(ll), c.search_apart, apart_yaw)
+        near = (np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) < c.search_apart) & (
+            np.abs(np.remainder(poses[:, 2] - pose[2] + math.pi, 2 * math.pi) - math.pi) < apart_yaw)
+        p = float(prob[near].max()) if near.any() else 0.0
+        u = Uniqueness(poses, prob, p, p >= c.claim_p)
+        self.checks.append(u)
+        return u
+
+
+def unique_or_reseed(check: ClaimCheck, flt, pts: np.ndarray, pose: np.ndarray) -> bool:
+    """Whether the filter's claim at `pose` stands; when it does not, the filter's particles are put back round every
+    place the scan fits (mapping/localize.py _Filter.apply), weighted by their posterior."""
+    u = check.test(pts, pose, flt.z_max)
+    if not u.unique:
+        flt.apply(Verdict(u.poses, u.prob, 0.0, False))
+    return u.unique

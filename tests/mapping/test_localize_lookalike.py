@@ -1,0 +1,47 @@
+"""`kosmap localize` never claims a look-alike place: the held-out ward (tests/worlds/ward.yaml), a corridor of 14
+identical rooms whose doors repeat 3 m apart and a T junction at one end, seen by a laser narrower than a full turn
+(a 240° Hokuyo URG-04LX, a 180° SICK-like scanner) with harsh wheels, no initial pose, in the blueprint. Along the
+corridor the scan fits a place two or three door pitches over as well as the truth; a particle set collapsed on
+either is tight, so the claim waits until one place alone fits (mapping/localize_claim.py: the junction in view).
+Scored against the log's ground truth without alignment: no claimed pose more than 0.5 m off, RMSE ≤ 0.05 m and
+heading ≤ 1° from the claim on, never lost."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from kosmap.tools.cli import main
+
+WORLDS = Path(__file__).resolve().parents[1] / "worlds"
+HARSH = dict(odom_scale_error_left=0.02, odom_scale_error_right=0.028, odom_heading_bias_deg_per_m=0.3)
+URG_04LX = dict(laser_fov_deg=240.0, laser_beams=683, laser_range_max=5.6)
+SICK_180 = dict(laser_fov_deg=180.0, laser_beams=361, laser_range_max=80.0)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed, laser", [(4, URG_04LX), (1, SICK_180)])
+def test_ward_look_alike_rooms_are_not_claimed_by_a_narrower_laser(tmp_path, capsys, seed, laser):
+    from kosmap.mapping.mapio import write_map_server
+    from kosmap.tools.simulate import SimConfig, load_world, simulate
+
+    world = load_world(str(WORLDS / "ward.yaml"))
+    log, plan = tmp_path / "ward.mcap", tmp_path / "ward_plan.yaml"
+    simulate(world, SimConfig(seed=seed, **HARSH, **laser, speed_min=0.6, speed_max=0.9, depth_rate=0.2,
+                              depth_width=32, depth_height=24, imu=False, compression="lz4"), log)
+    write_map_server(world.blueprint(0.05), plan, image_ext=".png")
+    out = tmp_path / "out"
+    code = main(["localize", str(log), "--map", str(plan), "--out", str(out), "--source", "laser", "--quiet"])
+    assert code == 0, capsys.readouterr().err
+    m = json.loads((out / "metrics.json").read_text())
+    loc, tr = m["localization"], m["truth"]
+    # measured: claimed at 27.4 s (240°, seed 4) and 20.8 s (180°, seed 1), once the T junction is in view, then
+    # 0.015 / 0.014 m RMSE, at most 0.036 / 0.032 m off; a claim from the tight set alone came at 5.8 / 4.3 s on a
+    # look-alike place 6-12 m off
+    assert loc["converged_s"] is not None, loc
+    assert tr["while_tracking"]["position_m"]["max"] <= 0.5, tr
+    assert tr["after_convergence"]["position_m"]["rmse"] <= 0.05, tr
+    assert tr["after_convergence"]["heading_deg"]["rmse"] <= 1.0, tr
+    assert not loc["lost"], loc
