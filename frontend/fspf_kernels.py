@@ -401,18 +401,23 @@ def _window_sample_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, W, pick, bx, by,
     pass over the window. Returns their count."""
     step = max(1, na // 1024)
     c = 0
-    for a in range(0, na, step):
+    for a in range(0, na, step):  # branch-free: a strided sample's inliers and outliers alternate unpredictably
         if c == len(pick):
             break
         _, _, _, x, y, z = window_point(wp, a, flat, W, tx, ty)
-        if abs(nx * x + ny * y + nz * z + d) < eps:
-            pick[c] = a
-            c += 1
+        pick[c] = a
+        c += abs(nx * x + ny * y + nz * z + d) < eps
     nb = min(c, 256)
+    q, rem = 0, 0  # q = ⌊k·c/nb⌋, stepped without a division per k
     for k in range(nb):
-        _, _, j, x, y, z = window_point(wp, pick[(k * c) // nb], flat, W, tx, ty)
+        _, _, j, x, y, z = window_point(wp, pick[q], flat, W, tx, ty)
         bx[k], by[k], bz[k] = x, y, z
         bidx[k] = j
+        q += c // nb
+        rem += c % nb
+        if rem >= nb:
+            q += 1
+            rem -= nb
     return nb
 
 
