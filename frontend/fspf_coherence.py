@@ -24,15 +24,15 @@ def _inv_d2(flat, j, step):
 @njit(cache=True, error_model="numpy")
 def _inliers_of_nb(sx, sy, sz, pix, ns, nx, ny, nz, d, eps, tx, ty, tz, tpix):
     """The sample's points within ε of (n, d), copied to tx, ty, tz (pixels to tpix). Returns (their count, their
-    residual sum of squares)."""
+    residual sum of squares). Branch-free: a sample's inliers and outliers alternate unpredictably."""
     m = 0
     ss = 0.0
     for s in range(ns):
         r = nx * sx[s] + ny * sy[s] + nz * sz[s] + d
-        if abs(r) < eps:
-            tx[m], ty[m], tz[m], tpix[m] = sx[s], sy[s], sz[s], pix[s]
-            ss += r * r
-            m += 1
+        tx[m], ty[m], tz[m], tpix[m] = sx[s], sy[s], sz[s], pix[s]
+        inlier = abs(r) < eps
+        ss += r * r if inlier else 0.0
+        m += inlier
     return m, ss
 
 
@@ -54,14 +54,12 @@ def _spread_beyond_noise_nb(pix, m, flat, W, H, noise, ss):
         cc = q - rr * W
         if 0 < cc < W - 1:
             v = _inv_d2(flat, q, 1)
-            if v >= 0:
-                noise[nn] = v
-                nn += 1
+            noise[nn] = v
+            nn += v >= 0
         if 0 < rr < H - 1:
             v = _inv_d2(flat, q, W)
-            if v >= 0:
-                noise[nn] = v
-                nn += 1
+            noise[nn] = v
+            nn += v >= 0
     if nn < 12:
         return False
     k = 1.15 * np.sqrt(6.0)
@@ -69,14 +67,13 @@ def _spread_beyond_noise_nb(pix, m, flat, W, H, noise, ss):
     # the upper quartile as np.percentile has it: linear between the order statistics lo and lo + 1 (< nn)
     pos = 0.75 * (nn - 1)
     lo = int(pos)
-    below, a, b = 0, -np.inf, np.inf  # count ≤ t, the largest ≤ t, the smallest above t
+    below, a, b = 0, -np.inf, np.inf  # count ≤ t, the largest ≤ t, the smallest above t (branch-free)
     for i in range(nn):
         v = noise[i]
-        if v <= t:
-            below += 1
-            a = max(a, v)
-        else:
-            b = min(b, v)
+        le = v <= t
+        below += le
+        a = max(a, v if le else -np.inf)
+        b = min(b, np.inf if le else v)
     if below >= lo + 2:  # both order statistics ≤ t: the quartile too
         return True
     if below <= lo:  # the lower one above t
