@@ -100,12 +100,6 @@ class _Motion:
         return fused, True
 
 
-def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) -> np.ndarray | None:
-    from kosmap.mapping.slam import _mount as slam_mount
-
-    return slam_mount(statics, base, frame)
-
-
 def read_input(path: str | Path, cfg, source: str, progress: Callable[[float, float], None] | None = None,
                workers: int = 0) -> LocalizationInput:
     """Read the log once; `source` "kos" (FSPF+ → KOS per depth frame at [localize] depth_rate, the [build]
@@ -226,10 +220,11 @@ class _FrameGate:
 
 def _read_laser(log, det, cfg, other, progress, total, workers, motion=None):
     from kosmap.frontend.odometry import scan_to_points
+    from kosmap.mapping.slamfeed import laser_mount, upright, upside_down
 
     lc = cfg.localize
-    statics: dict[str, tuple[str, np.ndarray]] = {}
-    mounts: dict[str, np.ndarray] = {}
+    statics: list[Transforms] = []
+    mounts: dict[str, tuple[np.ndarray, bool]] = {}  # frame → (x, y, yaw) in base_link, upside down
     warnings: list[str] = []
     stamps: list[int] = []
     points: list[np.ndarray] = []
@@ -241,24 +236,20 @@ def _read_laser(log, det, cfg, other, progress, total, workers, motion=None):
         if other(rec):
             continue
         if isinstance(rec, Transforms):
-            for tf in rec.transforms:
-                statics[tf.child] = (tf.parent, np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]]))
+            statics.append(rec)
         elif isinstance(rec, Scan) and rec.topic == det.scan:
             first = rec.stamp_ns if first is None else first
             if last is not None and rec.stamp_ns - last < min_period - 1_000_000:
                 continue
             last = rec.stamp_ns
             frame = rec.frame_id.lstrip("/") or "base_link"
-            if frame not in mounts:
-                m = _mount(statics, "base_link", frame)
-                if m is None:
-                    m = np.zeros(3)
-                    if frame != "base_link":
-                        warnings.append(f"no static transform from base_link to {frame}; the laser is taken as "
-                                        f"mounted at base_link")
-                mounts[frame] = m
+            if frame not in mounts:  # the lookup `kosmap slam` and `build` make (mapping/slamfeed.py)
+                m, w = laser_mount(statics, "base_link", frame)
+                mounts[frame] = (m, upside_down(statics, "base_link", frame))
+                warnings.extend([w] if w else [])
+            m, flip = mounts[frame]
             stamps.append(rec.stamp_ns)
-            points.append(scan_to_points(rec, mounts[frame], lc.min_range, lc.max_range).astype(np.float32))
+            points.append(scan_to_points(upright(rec) if flip else rec, m, lc.min_range, lc.max_range).astype(np.float32))
             if progress is not None:
                 progress((rec.stamp_ns - first) * 1e-9, total)
     return stamps, points, warnings

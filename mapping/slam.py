@@ -23,22 +23,8 @@ from kosmap.mapping.config import Config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosstream import KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
-from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
-
-
-def _mount(statics: dict[str, tuple[str, np.ndarray]], base: str, frame: str) -> np.ndarray | None:
-    """Planar pose of `frame` in `base` from static transforms (child → (parent, x y yaw)); None if unlinked."""
-    pose = np.zeros(3)
-    f = frame.lstrip("/")
-    for _ in range(32):
-        if f == base:
-            return pose
-        if f not in statics:
-            return None
-        parent, p = statics[f]
-        pose = se2.compose(p, pose)
-        f = parent
-    return None
+from kosmap.mapping.slamfeed import (SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns,
+                                     upright, upside_down)
 
 
 def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callable[[float, float], None] | None = None,
@@ -74,7 +60,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         period = laser_period(cfg.build.laser_rate, info.count(det.scan), float(info.duration))
         gt: list[np.ndarray] = []
         statics: list[Transforms] = []
-        st = {"base": "base_link", "mount": None, "last": None, "first": None, "now": None}
+        st = {"base": "base_link", "mount": None, "flip": False, "last": None, "first": None, "now": None}
         total = info.duration
         for rec in log.read_batched(topics):
             if rec.stamp_ns and (st["now"] is None or rec.stamp_ns > st["now"]):
@@ -104,9 +90,11 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
                 if st["last"] is None or rec.stamp_ns - st["last"] >= period - 1_000_000:
                     if st["mount"] is None:
                         st["mount"], w = laser_mount(statics, st["base"], rec.frame_id)
+                        st["flip"] = upside_down(statics, st["base"], rec.frame_id)
                         warnings.extend([w] if w else [])
-                    feed.push_laser(rec, st["mount"])
                     st["last"] = rec.stamp_ns
+                    rec = upright(rec) if st["flip"] else rec
+                    feed.push_laser(rec, st["mount"])
                     if kept is not None:
                         kept.append(rec)
                 if progress is not None:

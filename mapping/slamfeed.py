@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from bisect import bisect_left
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 
@@ -53,6 +54,22 @@ def laser_mount(statics, base: str, frame: str) -> tuple[np.ndarray, str | None]
     if frame.lstrip("/") in (base, "base_link", ""):
         return np.zeros(3), None
     return np.zeros(3), f"no static transform from {base} to {frame}; the laser is taken as mounted at {base}"
+
+
+def upside_down(statics, base: str, frame: str) -> bool:
+    """Whether the laser is mounted upside down (its z axis points down in the robot's frame): it scans the other
+    way round (REP 103), so its scans are read `upright`."""
+    tf = lookup_static(statics, base, frame) or lookup_static(statics, "base_link", frame)
+    return tf is not None and tf.matrix()[2, 2] < 0
+
+
+def upright(scan: Scan) -> Scan:
+    """An upside-down laser's scan as an upright laser with the same planar pose would see it: its beam i bears
+    −(angle_min + i·angle_increment), so the beams are reversed and start at −angle_max; their times run backwards
+    from the last beam's, which becomes the stamp (frontend/deskew.py takes beam i at stamp + i·time_increment)."""
+    last = int(round(scan.time_increment * (len(scan.ranges) - 1) * 1e9))
+    return replace(scan, stamp_ns=scan.stamp_ns + last, ranges=scan.ranges[::-1].copy(), angle_min=-scan.angle_max,
+                   intensities=scan.intensities[::-1].copy(), time_increment=-scan.time_increment)
 
 
 def laser_period(rate_hz: float, n_scans: int, duration_s: float) -> int:

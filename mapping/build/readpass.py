@@ -35,7 +35,7 @@ from kosmap.mapping.config import Config
 from kosmap.mapping.lasercal import KosLaserCal
 from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
-from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns
+from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns, upright, upside_down
 
 STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
                  "planes", "points", "fspf_ms", "kos_ms")
@@ -150,6 +150,7 @@ class ReadPass:
         self.end: int | None = None
         self.base = "base_link"  # the wheel odometry's child frame
         self.laser_mount: np.ndarray | None = None
+        self.laser_flip = False  # mounted upside down: its scans are read upright (mapping/slamfeed.py)
         self.laser_tf: np.ndarray | None = None  # the laser's mount as a matrix, for the fused scan
         self.last_laser: int | None = None
         self.last_fused: int | None = None
@@ -324,7 +325,10 @@ class ReadPass:
             return
         if self.laser_mount is None:  # the same lookup as `kosmap slam` (mapping/slamfeed.py)
             self.laser_mount, w = laser_mount(self.statics, self.base, scan.frame_id)
+            self.laser_flip = upside_down(self.statics, self.base, scan.frame_id)
             self.warnings.extend([w] if w else [])
+        read_at = scan.stamp_ns  # the thinning's clock, whichever way the laser is mounted
+        scan = upright(scan) if self.laser_flip else scan
         spill = self.spill
         if not spill.laser.add(scan.stamp_ns, scan.ranges):
             return
@@ -332,7 +336,7 @@ class ReadPass:
             spill.laser.meta = {"angle_min": scan.angle_min, "angle_increment": scan.angle_increment,
                                 "range_min": scan.range_min, "range_max": scan.range_max, "frame_id": scan.frame_id,
                                 "topic": scan.topic, "time_increment": scan.time_increment}
-        self.last_laser = scan.stamp_ns
+        self.last_laser = read_at
         self.laser_kept += 1
         self.laser_feed.push_laser(scan, self.laser_mount)
         if not self.det.depth:
