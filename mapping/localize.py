@@ -20,7 +20,7 @@ from kosmap.backend.likelihood_field import MapField, map_field
 from kosmap.frontend import se2
 from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
-from kosmap.mapping.localize_claim import ClaimCheck, unique_or_reseed
+from kosmap.mapping.localize_claim import ClaimCheck, jump_test, unique_or_reseed
 from kosmap.mapping.localize_config import LocalizeConfig
 from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round
 
@@ -329,7 +329,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
         pose = pose_f
         if converged and cfg.refine and len(pts) >= cfg.min_points:
-            pose, tracked, lost = _track(f, cfg, flt, inp, i, pose_f, est, tracked, conv)
+            pose, tracked, lost = _track(f, cfg, flt, inp, i, pose_f, est, tracked, conv, jump_test(
+                f, cfg, None if ws is None else ws.window, u))
             if lost:
                 ws.reset() if ws is not None else None
                 status[i] = LOST
@@ -384,7 +385,8 @@ def _update(flt: _Filter, ws: WindowSearch | None, pts: np.ndarray, u, tracked):
     return est, tracked, v
 
 
-def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: np.ndarray, est, tracked, conv: _Tight):
+def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: np.ndarray, est, tracked, conv: _Tight,
+           jump=None):
     """The refined pose of scan i (the filter holds a pose): from the track's own prediction while it stays within
     refine_gate_sigmas of the filter's, else restarted at the filter's. Also (pose, track, lost): lost when its
     readings have passed through the map's walls for lost_through_s (kidnapped, or wrong from the start)."""
@@ -395,7 +397,9 @@ def _track(f: MapField, cfg: LocalizeConfig, flt: _Filter, inp, i: int, pose_f: 
         gate_xy = max(cfg.refine_gate_sigmas * est.mode_xy, cfg.converged_xy)
         gate_yaw = max(cfg.refine_gate_sigmas * est.mode_yaw, conv.yaw)
         near = math.hypot(pt[0] - pose_f[0], pt[1] - pose_f[1]) <= gate_xy and abs(se2.wrap(pt[2] - pose_f[2])) <= gate_yaw
-        if near or _track_holds(f, cfg, pts, pt):
+        # and, with the window, moved to the filter's mode only where more than one scan refutes the track or the window
+        # is sure of the mode (mapping/localize_claim.py jump_test)
+        if near or _track_holds(f, cfg, pts, pt) or (jump is not None and not jump(pt, pose_f)):
             pred, coarse = pt, False
     pose = _refine(f, cfg, pts, pred, _moving(inp.odom[i - 1], u) if u is not None and i > 0 else None, coarse,
                    cfg.refine_prior_laser if inp.source == "laser" else None)

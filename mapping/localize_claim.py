@@ -73,3 +73,48 @@ def unique_or_reseed(check: ClaimCheck, flt, pts: np.ndarray, pose: np.ndarray) 
     if not u.unique:
         flt.apply(Verdict(u.poses, u.prob, 0.0, False))
     return u.unique
+
+
+def jump_sure(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, views: np.ndarray, track: np.ndarray,
+              mode: np.ndarray, z_max: float) -> bool:
+    """Whether the filter's mode, far from the refined track, is the place the data fit, sure over the track's: the
+    same posterior as a claim (each pose first brought to its best by Gauss–Newton, then the likelihood field over
+    end points 2σ_hit apart, each ray traced from where it was seen). Moving the track to the mode is a new claim;
+    a particle set spread over look-alike places (the ward's rooms, the floor's half-turn image) has modes that fit
+    as well as the track, and one scan whose readings graze a door's jamb would otherwise hand the track to one."""
+    pts = np.asarray(pts, float)[:, :2]
+    if len(pts) == 0:
+        return True
+    fine = pts[gs.thin(pts, cfg.search_fine)]
+    poses = np.array([_polish(f, fine, track), _polish(f, fine, mode)])
+    keep = gs.thin(pts, 2.0 * cfg.sigma_hit)
+    through = math.log(cfg.z_through / z_max) if cfg.z_through > 0 else -math.inf
+    _, ll = _profile(f, poses, pts[keep], np.asarray(views, float)[keep], through, cfg.through_tol)
+    return bool(gs.posterior(ll)[1] >= cfg.claim_p)
+
+
+def jump_test(f: MapField, cfg: LocalizeConfig, window, u: np.ndarray | None):
+    """Whether the refined track may be moved to the filter's far mode (None: whenever its own scan refutes it, the
+    laser's case: one wide scan is its own evidence). With the depth camera's window of the last `window_m` of scans
+    (the poses of the scan at odometry pose `u` moved by the odometry to the window's newest scan): when the window's
+    last `check_m` refutes the track too, its readings passing through the walls (the kidnapping check's test: a
+    robot carried, the scans since fit nowhere near the track), or when the whole window is sure of the mode over
+    the track (`jump_sure`). One scan that refutes the track (taken in a doorway, its rays grazing the jamb) does
+    neither, and the track holds."""
+    from kosmap.frontend import se2
+
+    if window is None or not window.odom or u is None:
+        return None
+    step = se2.between(u, window.odom[-1])  # from the scan's odometry pose to the window's newest
+
+    def test(track: np.ndarray, mode: np.ndarray) -> bool:
+        z_max = math.exp(-f.floor) * cfg.z_rand  # the floor is log(z_rand / z_max)
+        at = se2.compose(track, step)
+        recent, views = window.submap(cfg.check_m)
+        keep = gs.thin(recent, 2.0 * cfg.sigma_hit)
+        if gs.window_through(f, at, recent[keep], views[keep], cfg.through_tol) > cfg.lost_through:
+            return True
+        sub, views = window.submap()
+        return jump_sure(f, cfg, sub, views, at, se2.compose(mode, step), z_max)
+
+    return test
