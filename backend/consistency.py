@@ -3,9 +3,9 @@
 Where the robot comes back to a place (a keyframe more than REVISIT_S after an earlier one that saw the same
 walls, from the same side), its scan, placed at its solved pose, should lie on the earlier scans' walls. A bent map
 puts them beside each other. Per revisiting keyframe the figure is how far its points must move, as one rigid body,
-onto the lines through their two nearest earlier points (one damped point-to-line ICP step, Censi 2008), for the
-points with an earlier neighbour within REVISIT_RADIUS; over the run the median and 90th percentile, and the worst
-keyframe's time. Beside it: the loop factors' residuals after the solve (loops the solution disagrees with).
+onto the earlier scans' segments they project onto (two consecutive points of one earlier scan; one damped
+point-to-line ICP step, Censi 2008), for the points within REVISIT_RADIUS of such a segment (where the views
+overlap); over the run the median and 90th percentile, and the worst keyframe's time. Beside it: the loop factors' residuals after the solve (loops the solution disagrees with).
 """
 
 from __future__ import annotations
@@ -29,10 +29,11 @@ MIN_POINTS = 20  # a keyframe is a revisit when at least this many of its points
 # step finds in the points' noise alone, at 99 % (χ² with 3 degrees of freedom, NOISE_CHI2): σ·√(NOISE_CHI2 / n) for n
 # compared points whose scatter about their lines is σ (the new scan's and the earlier ones', each measured on the scan
 # itself, `scan_noise`: a narrow depth scan's noise grows with range², a laser's is ~1 cm). The map is bent when the
-# median revisit is off by more than its tolerance, or the worst tenth by more than BENT_P90_CELLS tolerances (a stretch
-# of the run placed wrong). Measured: good maps of the simulated office (KOS and laser, ATE 0.02–0.09 m) median
-# 0.004–0.04 m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows 0.09 m apart, called bent;
-# bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37
+# revisits refute a consistent map's: at least half within their tolerance and nine in ten within BENT_P90_CELLS
+# tolerances (a stretch of the run placed wrong), by a sign test on their count (revisit_verdict); too few revisits to
+# refute the median are "too few to tell", not a verdict. Measured: good maps of the simulated office (KOS and laser,
+# ATE 0.02–0.09 m) median 0.004–0.04 m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows
+# 0.09 m apart, called bent; bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37
 # m (docs/consistency.md).
 CELL_M = 0.05  # m: the default [grid] resolution, when the run's is not given
 NOISE_CHI2 = 11.34  # χ²₃ at 99 %: the rigid step's three parameters fitted to noise
@@ -51,6 +52,10 @@ LOOP_P = 0.01
 # and its map is then wrong where no revisit can show it. Ten times the worst of the consistent runs:
 RECOVERY_SHARE = 0.05
 LOOP_CHI2 = 9.21  # χ²₂ at 99 %
+# The revisits' verdict needs evidence: a sign test of their count beyond the tolerance (revisit_verdict) at this level,
+# the loops' level: a narrow scan's few revisits (3-7 on a two-minute run) decide nothing by their median alone.
+REVISIT_P = 0.01
+SEGMENT_K = 4  # a point is compared with the earlier scans' segments at its this many nearest earlier points (_segment)
 KEEP_POINTS = 96  # points kept per keyframe for the check (every k-th of the scan)
 
 
@@ -71,6 +76,7 @@ class Consistency:
     scan_noise_m: float = float("nan")  # the median keyframe's scatter about its own lines (scan_noise)
     loops_refuted: int = 0  # loops missed where the later keyframe's scan fits the earlier ones: false loops left out
     recovery_share: float = 0.0  # share of the front end's matches it re-searched over a wide window (frontend_unsure)
+    too_few: bool = False  # revisits seen, but too few for a verdict (revisit_verdict): "too few revisits to tell"
 
     def frontend_unsure(self, recoveries: int, matches: int) -> None:
         """Record the front end's wide re-searches; above RECOVERY_SHARE of its matches the map is likely wrong."""
@@ -141,18 +147,21 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
             seen_from = (np.vstack([np.repeat(np.asarray(key_poses[j][:2], float)[None], len(world[j]), 0) for j in olds])
                          if olds else np.zeros((0, 2)))
             old_noise = np.concatenate([np.full(len(world[j]), nz[j]) for j in olds]) if olds else np.zeros(0)
+            nbr = _scan_neighbours([world[j] for j in olds])
             tree, tree_until = (cKDTree(pts), n_old) if len(pts) >= 2 else (None, -1)
         if tree is None:
             continue
-        d, idx = tree.query(world[i], k=2, distance_upper_bound=REVISIT_RADIUS)
-        ok = np.isfinite(d[:, 1])
-        a_, b_ = tree.data[idx[ok, 0]], tree.data[idx[ok, 1]]
+        d, idx = tree.query(world[i], k=SEGMENT_K, distance_upper_bound=REVISIT_RADIUS)
+        near = np.isfinite(d[:, 0])
+        a_, b_, ia, seg = _segment(world[i][near], tree.data, idx[near], nbr)
+        keep = np.flatnonzero(near)[seg]  # the points where the earlier scans saw the same stretch of surface
+        a_, b_, ia = a_[seg], b_[seg], ia[seg]
         # the same face: both scans saw the wall from the same side (a wall's two faces are its thickness apart)
-        same = _same_side(a_, b_, seen_from[idx[ok, 0]], np.asarray(key_poses[i][:2], float), world[i][ok])
+        same = _same_side(a_, b_, seen_from[ia], np.asarray(key_poses[i][:2], float), world[i][keep])
         if same.sum() < MIN_POINTS:
             continue
-        per_kf[i] = _misalignment(world[i][ok][same], a_[same], b_[same], key_poses[i][:2])
-        sigma = math.sqrt(nz[i] ** 2 + float(np.median(old_noise[idx[ok, 0]][same])) ** 2)
+        per_kf[i] = _misalignment(world[i][keep][same], a_[same], b_[same], key_poses[i][:2])
+        sigma = math.sqrt(nz[i] ** 2 + float(np.median(old_noise[ia][same])) ** 2)
         tol[i] = cell + sigma * math.sqrt(NOISE_CHI2 / int(same.sum()))
     rv = np.isfinite(per_kf)
     checks = list(loops or [])
@@ -176,12 +185,29 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
                   and per_kf[c.keyframe] <= tol[c.keyframe])
     off = len(missed) - refuted
     chance = float(binom.sf(off - 1, len(checks), 0.01)) if off else 1.0  # this many misses of a consistent map's 1 %
-    bent = bool((len(ratio) >= 5 and (np.median(ratio) > 1.0 or np.percentile(ratio, 90) > BENT_P90_CELLS))
-                or (off >= 3 and chance < LOOP_P))
+    revisits_bent, decidable = revisit_verdict(ratio)
+    bent = bool(revisits_bent or (off >= 3 and chance < LOOP_P))
     return Consistency(int(rv.sum()), int(len(t)), med, p90, worst, worst_t, len(checks),
                        float(np.median(res)) if len(res) else float("nan"), float(res.max()) if len(res) else float("nan"),
                        int(off), bent, med_tol, float(np.nanmedian(noise)) if np.isfinite(noise).any() else float("nan"),
-                       int(refuted))
+                       int(refuted), too_few=bool(len(ratio) and not decidable and not bent))
+
+
+def revisit_verdict(ratio: np.ndarray) -> tuple[bool, bool]:
+    """Whether the revisits' misfits (each over its tolerance, `ratio`) show a bent map, and whether their count could
+    refute the median (fewer: only a gross bend, the worst-tenth test, can show). A consistent map's revisit is within its tolerance at least half the time and within BENT_P90_CELLS
+    tolerances nine times in ten; the map is bent when the revisits refute either at REVISIT_P (a sign test: the
+    binomial chance of that many revisits beyond it). The median test needs ⌈log₂(1/REVISIT_P)⌉ = 7 revisits, all off;
+    the worst-tenth one 3 revisits, all off by more than BENT_P90_CELLS tolerances. Fewer: too few revisits to tell."""
+    n = len(ratio)
+    if n == 0:
+        return False, False
+    over = int(np.sum(ratio > 1.0))
+    far = int(np.sum(ratio > BENT_P90_CELLS))
+    p_med = float(binom.sf(over - 1, n, 0.5)) if over else 1.0
+    p_far = float(binom.sf(far - 1, n, 0.1)) if far else 1.0
+    decidable = 0.5 ** n < REVISIT_P  # the median test could refute a consistent map: 7 revisits or more
+    return bool(p_med < REVISIT_P or p_far < REVISIT_P), decidable
 
 
 def scan_noise(points: np.ndarray, max_gap: float = REVISIT_RADIUS) -> float:
@@ -201,6 +227,51 @@ def scan_noise(points: np.ndarray, max_gap: float = REVISIT_RADIUS) -> float:
     n = np.column_stack((-chord[ok, 1], chord[ok, 0])) / L[ok, None]
     dev = np.einsum("ij,ij->i", p[:-2][ok] - 2 * p[1:-1][ok] + p[2:][ok], n)
     return float(1.4826 * np.median(np.abs(dev)) / math.sqrt(6.0))
+
+
+def _scan_neighbours(scans: list[np.ndarray]) -> np.ndarray:
+    """For the points of `scans` stacked in order: the stacked index of each point's predecessor and successor in its
+    own scan (beam order), -1 at a scan's ends and across a gap over REVISIT_RADIUS (another surface)."""
+    out = []
+    base = 0
+    for q in scans:
+        n = len(q)
+        prev, nxt = np.arange(n) - 1 + base, np.arange(n) + 1 + base
+        gap = np.linalg.norm(np.diff(q, axis=0), axis=1) > REVISIT_RADIUS if n > 1 else np.zeros(0, bool)
+        prev[0], nxt[-1] = -1, -1
+        prev[1:][gap], nxt[:-1][gap] = -1, -1
+        out.append(np.column_stack((prev, nxt)))
+        base += n
+    return np.vstack(out) if out else np.zeros((0, 2), np.int64)
+
+
+def _segment(p: np.ndarray, pts: np.ndarray, idx: np.ndarray, nbr: np.ndarray):
+    """The earlier surface each point p is compared with: a segment of an earlier scan between consecutive points (in
+    its beam order) that p projects onto, the nearest such among the segments at p's SEGMENT_K nearest earlier points
+    (`idx`, n×k, missing ones = len(pts)): point-to-line ICP's two closest points are consecutive points of the
+    reference scan (Censi 2008). A point that projects onto none lies beyond the stretch of surface the earlier scans
+    saw (past their end, or round a corner): it is not compared (the views do not overlap there, and its distance to
+    the nearest earlier point runs along the surface, not across it). Returns a, b, a's index and which points are
+    compared."""
+    n = len(p)
+    best = np.full(n, np.inf)
+    a, b, ia = np.zeros((n, 2)), np.zeros((n, 2)), np.zeros(n, np.int64)
+    for k in range(idx.shape[1]):
+        i0 = idx[:, k]
+        real = i0 < len(pts)
+        i0 = np.where(real, i0, 0)
+        a0 = pts[i0]
+        for side in (0, 1):
+            j = nbr[i0, side]
+            has = real & (j >= 0)
+            q = pts[np.maximum(j, 0)]
+            ab = q - a0
+            L2 = np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12)
+            u = np.einsum("ij,ij->i", p - a0, ab) / L2
+            dist = np.abs(ab[:, 0] * (p[:, 1] - a0[:, 1]) - ab[:, 1] * (p[:, 0] - a0[:, 0])) / np.sqrt(L2)
+            take = has & (L2 > 1e-8) & (u >= 0.0) & (u <= 1.0) & (dist < best)
+            best[take], a[take], b[take], ia[take] = dist[take], a0[take], q[take], i0[take]
+    return a, b, ia, np.isfinite(best)
 
 
 def _same_side(a: np.ndarray, b: np.ndarray, c_old: np.ndarray, c_new: np.ndarray, p: np.ndarray) -> np.ndarray:
