@@ -76,3 +76,17 @@ def test_kos_slam_in_the_irregular_hall_with_harsh_wheels_is_not_called_bent(tmp
     assert m["ate_odometry"]["rmse"] > 0.3, m["ate_odometry"]  # the wheels alone are far off
     assert not c["bent"], c
     assert not any("likely bent" in w for w in r.warnings), r.warnings
+
+
+def test_the_console_says_too_few_revisits_to_tell():
+    """Five revisits a cell and a half off: no verdict, and the console/report line says so; seven: likely bent."""
+    from kosmap.mapping.report import consistency_text
+
+    t5, p5, pts5 = _wall_run(1.5, 0.08)
+    keep = list(range(10)) + list(range(10, 15))  # five revisits
+    c = consistency(t5[keep], p5[keep], [pts5[k] for k in keep])
+    assert c.revisit_keyframes == 5 and not c.bent and c.too_few, c
+    assert consistency_text(c.as_dict()).endswith("5 keyframes): too few revisits to tell")
+    keep = list(range(10)) + list(range(10, 17))
+    c = consistency(t5[keep], p5[keep], [pts5[k] for k in keep])
+    assert c.bent and not c.too_few and consistency_text(c.as_dict()).endswith(": likely bent"), c
