@@ -325,7 +325,8 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
                 snaps.append(Snapshot(int(inp.stamps_ns[i]), flt.parts[sel].astype(np.float32)))
         pose_f = se2.compose(est.pose, se2.between(u_last, u)) if inp.has_odom else est.pose.copy()
         converged = flt.decide(est, update, ws is not None, conv,
-                               None if uq is None else (lambda p, pts=pts: unique_or_reseed(uq, flt, pts, p)))
+                               None if uq is None else (lambda p, pts=pts, t=float(inp.stamps[i] - inp.stamps[0]):
+                                                         _claim_unique(uq, flt, pts, p, searches, t)))
         status[i] = TRACKING if converged else (LOST if flt.found else SEARCHING)
         pose = pose_f
         if converged and cfg.refine and len(pts) >= cfg.min_points:
@@ -353,6 +354,14 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
     return LocalizeResult(inp.stamps_ns, poses, fposes, out["sx"], out["sy"], out["score"], out["inl"],
                           out["np"].astype(int), out["ratio"], out["share"], status, snaps, searches, flt.updates,
                           time.perf_counter() - t_start)
+
+
+def _claim_unique(uq: ClaimCheck, flt: _Filter, pts: np.ndarray, pose: np.ndarray, searches: list, t_s: float) -> bool:
+    """The laser claim's uniqueness test (mapping/localize_claim.py), its places reported with the window's searches."""
+    u = unique_or_reseed(uq, flt, pts, pose)
+    alive = u.prob >= PLACE_MIN_P
+    searches.append(Places(t_s, u.poses[alive].copy(), u.prob[alive].copy(), u.unique))
+    return u.unique
 
 
 class _Tight:

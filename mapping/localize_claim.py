@@ -66,13 +66,13 @@ class ClaimCheck:
         return u
 
 
-def unique_or_reseed(check: ClaimCheck, flt, pts: np.ndarray, pose: np.ndarray) -> bool:
-    """Whether the filter's claim at `pose` stands; when it does not, the filter's particles are put back round every
-    place the scan fits (mapping/localize.py _Filter.apply), weighted by their posterior."""
+def unique_or_reseed(check: ClaimCheck, flt, pts: np.ndarray, pose: np.ndarray) -> Uniqueness:
+    """The test of the filter's claim at `pose`; when it fails, the filter's particles are put back round every place
+    the scan fits (mapping/localize.py _Filter.apply), weighted by their posterior."""
     u = check.test(pts, pose, flt.z_max)
     if not u.unique:
         flt.apply(Verdict(u.poses, u.prob, 0.0, False))
-    return u.unique
+    return u
 
 
 def jump_sure(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, views: np.ndarray, track: np.ndarray,

@@ -45,6 +45,9 @@ def test_ward_look_alike_rooms_are_not_claimed_by_a_narrower_laser(tmp_path, cap
     # 0.015 / 0.014 m RMSE, at most 0.036 / 0.032 m off; a claim from the tight set alone came at 5.8 / 4.3 s on a
     # look-alike place 6-12 m off
     assert loc["converged_s"] is not None, loc
+    # metrics.json lists the uniqueness tests: the tight set's earlier claims turned down, the last one made
+    checks = loc["search"]["searches"]
+    assert any(not c["claim"] and c["t_s"] < loc["converged_s"] for c in checks) and checks[-1]["claim"], checks
     assert tr["while_tracking"]["position_m"]["max"] <= 0.5, tr
     assert tr["after_convergence"]["position_m"]["rmse"] <= 0.05, tr
     assert tr["after_convergence"]["heading_deg"]["rmse"] <= 1.0, tr
