@@ -22,7 +22,7 @@ from kosmap.frontend.errors import KosmapError
 from kosmap.frontend.matcher import correlative_search, gauss_newton, inlier_fraction
 from kosmap.mapping.localize_claim import ClaimCheck, jump_test, unique_or_reseed
 from kosmap.mapping.localize_config import LocalizeConfig
-from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round
+from kosmap.mapping.localize_search import Verdict, WindowSearch, seed_round, through_floor, z_max_of
 
 SEARCHING, TRACKING, LOST = 0, 1, 2  # per-pose status: not found yet, found, lost after having been found
 STATUS_NAMES = ("searching", "tracking", "lost")
@@ -132,7 +132,7 @@ class _Filter:
     def __init__(self, f: MapField, cfg: LocalizeConfig, rng: np.random.Generator, initial: np.ndarray | None,
                  windowed: bool = False) -> None:
         self.f, self.cfg, self.rng = f, cfg, rng
-        self.z_max = math.exp(-f.floor) * cfg.z_rand  # the floor is log(z_rand / z_max)
+        self.z_max = z_max_of(f, cfg)
         self.global_n = int(min(cfg.global_max_particles, max(cfg.min_particles, cfg.global_density * f.free_area)))
         if initial is None:
             # with the window's search the first pose is the search's claim, and the particles are seeded round its
@@ -203,7 +203,7 @@ class _Filter:
     def measure(self, pts: np.ndarray) -> None:
         c = self.cfg
         beams = mcl.beam_subset(pts, c.max_beams)
-        through = math.log(c.z_through / self.z_max) if c.z_through > 0 else -math.inf
+        through = through_floor(c, self.z_max)
         searching = not self.found or self.lost_since >= 0
         # while the pose is not found, a reading counts as through a wall only beyond sigma_search: a sparse global
         # set's particle stands for the poses round it
@@ -357,7 +357,11 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
 
 
 def _claim_unique(uq: ClaimCheck, flt: _Filter, pts: np.ndarray, pose: np.ndarray, searches: list, t_s: float) -> bool:
-    """The laser claim's uniqueness test (mapping/localize_claim.py), its places reported with the window's searches."""
+    """The laser claim's uniqueness test (mapping/localize_claim.py), its places reported with the window's searches.
+    A scan with fewer than min_points end points (one the filter does not weigh) cannot single out a place: no claim
+    on it."""
+    if len(pts) < uq.cfg.min_points:
+        return False
     u = unique_or_reseed(uq, flt, pts, pose)
     alive = u.prob >= PLACE_MIN_P
     searches.append(Places(t_s, u.poses[alive].copy(), u.prob[alive].copy(), u.unique))
@@ -499,8 +503,7 @@ def _near_face(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pose: np.ndarr
     a = np.radians(np.arange(-2.0, 2.5, 1.0))
     gx, gy, ga = np.meshgrid(d, d, a, indexing="ij")
     grid = pose + np.column_stack((gx.ravel(), gy.ravel(), ga.ravel()))
-    z_max = math.exp(-f.floor) * cfg.z_rand
-    ll = mcl.log_likelihoods(f, grid, mcl.beam_subset(pts, 4 * cfg.max_beams), math.log(cfg.z_through / z_max),
+    ll = mcl.log_likelihoods(f, grid, mcl.beam_subset(pts, 4 * cfg.max_beams), through_floor(cfg, z_max_of(f, cfg)),
                              f.resolution)
     best = np.flatnonzero(ll >= ll.max() - 1e-9)
     return grid[best[np.argmin(np.hypot(grid[best, 0] - pose[0], grid[best, 1] - pose[1]))]]

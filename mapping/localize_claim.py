@@ -23,8 +23,10 @@ import numpy as np
 
 from kosmap.backend import globalsearch as gs
 from kosmap.backend.likelihood_field import MapField
+from kosmap.frontend import se2
 from kosmap.mapping.localize_config import LocalizeConfig
-from kosmap.mapping.localize_search import Verdict, _merge, _polish, _profile
+from kosmap.mapping.localize_search import (Verdict, candidates, polish, profile_places, score_places, through_floor,
+                                            z_max_of)
 
 
 @dataclass
@@ -43,27 +45,19 @@ class ClaimCheck:
     def __init__(self, f: MapField, cfg: LocalizeConfig) -> None:
         self.f, self.cfg = f, cfg
         self.sf = gs.search_field(f.distance, f.free, f.origin, f.resolution, cfg.search_step, cfg.search_fine)
-        self.checks: list[Uniqueness] = []
 
     def test(self, pts: np.ndarray, pose: np.ndarray, z_max: float) -> Uniqueness:
         """The scan `pts` (N×2, robot frame) over the whole map, the filter's `pose` one of the places."""
         c, f = self.cfg, self.f
         pts = np.asarray(pts, float)[:, :2]
-        apart_yaw = math.radians(c.search_apart_deg)
         coarse = pts[gs.thin(pts, c.search_fine)]
-        cands = gs.global_search(self.sf, coarse, c.search_keep, c.search_apart, apart_yaw, c.search_fine)
-        poses = np.array([_polish(f, coarse, k.pose) for k in cands] + [_polish(f, coarse, pose)])
-        keep = gs.thin(pts, 2.0 * c.sigma_hit)  # a correlation length apart: about independent readings
-        views = np.zeros((len(keep), 2))  # one scan, seen from the robot
-        through = math.log(c.z_through / z_max) if c.z_through > 0 else -math.inf
-        poses, ll = _profile(f, poses, pts[keep], views, through, c.through_tol)
-        poses, prob = _merge(poses, gs.posterior(ll), c.search_apart, apart_yaw)
+        poses = np.array(candidates(self.sf, f, c, coarse) + [polish(f, coarse, pose)])
+        views = np.zeros((len(pts), 2))  # one scan, seen from the robot
+        poses, prob = score_places(f, c, poses, pts, views, z_max)
         near = (np.hypot(poses[:, 0] - pose[0], poses[:, 1] - pose[1]) < c.search_apart) & (
-            np.abs(np.remainder(poses[:, 2] - pose[2] + math.pi, 2 * math.pi) - math.pi) < apart_yaw)
+            np.abs(np.remainder(poses[:, 2] - pose[2] + math.pi, 2 * math.pi) - math.pi) < math.radians(c.search_apart_deg))
         p = float(prob[near].max()) if near.any() else 0.0
-        u = Uniqueness(poses, prob, p, p >= c.claim_p)
-        self.checks.append(u)
-        return u
+        return Uniqueness(poses, prob, p, p >= c.claim_p)
 
 
 def unique_or_reseed(check: ClaimCheck, flt, pts: np.ndarray, pose: np.ndarray) -> Uniqueness:
@@ -84,12 +78,12 @@ def jump_sure(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, views: np.ndarr
     as well as the track, and one scan whose readings graze a door's jamb would otherwise hand the track to one."""
     pts = np.asarray(pts, float)[:, :2]
     if len(pts) == 0:
-        return True
+        return False  # no evidence: the track holds
     fine = pts[gs.thin(pts, cfg.search_fine)]
-    poses = np.array([_polish(f, fine, track), _polish(f, fine, mode)])
+    poses = np.array([polish(f, fine, track), polish(f, fine, mode)])
     keep = gs.thin(pts, 2.0 * cfg.sigma_hit)
-    through = math.log(cfg.z_through / z_max) if cfg.z_through > 0 else -math.inf
-    _, ll = _profile(f, poses, pts[keep], np.asarray(views, float)[keep], through, cfg.through_tol)
+    _, ll = profile_places(f, poses, pts[keep], np.asarray(views, float)[keep], through_floor(cfg, z_max),
+                           cfg.through_tol)
     return bool(gs.posterior(ll)[1] >= cfg.claim_p)
 
 
@@ -101,14 +95,12 @@ def jump_test(f: MapField, cfg: LocalizeConfig, window, u: np.ndarray | None):
     robot carried, the scans since fit nowhere near the track), or when the whole window is sure of the mode over
     the track (`jump_sure`). One scan that refutes the track (taken in a doorway, its rays grazing the jamb) does
     neither, and the track holds."""
-    from kosmap.frontend import se2
-
     if window is None or not window.odom or u is None:
         return None
     step = se2.between(u, window.odom[-1])  # from the scan's odometry pose to the window's newest
 
     def test(track: np.ndarray, mode: np.ndarray) -> bool:
-        z_max = math.exp(-f.floor) * cfg.z_rand  # the floor is log(z_rand / z_max)
+        z_max = z_max_of(f, cfg)
         at = se2.compose(track, step)
         recent, views = window.submap(cfg.check_m)
         keep = gs.thin(recent, 2.0 * cfg.sigma_hit)

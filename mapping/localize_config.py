@@ -73,7 +73,7 @@ class LocalizeConfig(StageConfig):
     search_keep: int = param(24, lo=2, doc="distinct places kept from the coarse search (each then searched finely)")
     search_apart: float = param(1.0, lo=0.0, lo_open=True, doc="places count as distinct this far apart ...", unit="m")
     search_apart_deg: float = param(20.0, lo=0.0, lo_open=True, doc="... or this far apart in heading", unit="deg")
-    claim_p: float = param(0.99, lo=0.5, hi=1.0, doc="a pose is claimed when the search gives its place this posterior probability over every other place the submap fits (and its readings do not pass through walls, lost_through)")
+    claim_p: float = param(0.99, lo=0.5, hi=1.0, doc="a pose is claimed when the search gives its place this posterior probability over every other place the submap fits (and its readings do not pass through walls, lost_through); the same bar for a laser's claim over every place its scan fits, and for moving a depth camera's track to a far mode")
     # tracking refined by the scan-to-map matcher (frontend/matcher.py gauss_newton against the map's field)
     refine: bool = param(True, doc="refine each pose by Gauss–Newton against the map, starting from the last refined pose moved by the odometry")
     match_sigma: float = param(0.05, lo=0.0, lo_open=True, doc="the matcher's field blur (one cell of a 5 cm map)", unit="m")

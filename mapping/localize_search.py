@@ -147,18 +147,12 @@ class WindowSearch:
         c, f = self.cfg, self.f
         self.searches += 1
         pts = sub[gs.thin(sub, c.search_fine)]
-        cands = gs.global_search(self.sf, pts, c.search_keep, c.search_apart, math.radians(c.search_apart_deg),
-                                 c.search_fine)
+        cands = candidates(self.sf, f, c, pts)
         if not cands:
             return Verdict(np.zeros((0, 3)), np.zeros(0), 1.0, False), None
-        poses = np.array([_polish(f, pts, k.pose) for k in cands] + ([] if held is None else [_polish(f, pts, held)]))
-        # the likelihood field model over end points a correlation length (2σ_hit) apart: those are about
-        # independent, where the raw submap sees each piece of wall from many scans
+        poses = np.array(cands + ([] if held is None else [polish(f, pts, held)]))
+        poses, prob = score_places(f, c, poses, sub, views, z_max)
         keep = gs.thin(sub, 2.0 * c.sigma_hit)
-        through = math.log(c.z_through / z_max) if c.z_through > 0 else -math.inf
-        poses, ll = _profile(f, poses, sub[keep], views[keep], through, c.through_tol)
-        prob = gs.posterior(ll)
-        poses, prob = _merge(poses, prob, c.search_apart, math.radians(c.search_apart_deg))
         thr = gs.window_through(f, poses[0], sub[keep], views[keep], c.through_tol)
         sure = bool(prob[0] >= c.claim_p and thr <= c.lost_through)
         # claimed when two searches in a row, search_every_m apart, are sure of the same place (the earlier one moved
@@ -170,6 +164,34 @@ class WindowSearch:
             again = (math.hypot(then[0] - poses[0, 0], then[1] - poses[0, 1]) < c.search_apart
                      and abs(se2.wrap(then[2] - poses[0, 2])) < math.radians(c.search_apart_deg))
         return Verdict(poses, prob, thr, again), ((poses[0].copy(), u.copy()) if sure else None)
+
+
+def z_max_of(f: MapField, cfg: LocalizeConfig) -> float:
+    """The likelihood field's max-range weight (its floor is log(z_rand / z_max))."""
+    return math.exp(-f.floor) * cfg.z_rand
+
+
+def through_floor(cfg: LocalizeConfig, z_max: float) -> float:
+    """The log-likelihood of a reading through a wall (−inf with z_through 0: no ray check)."""
+    return math.log(cfg.z_through / z_max) if cfg.z_through > 0 else -math.inf
+
+
+def candidates(sf, f: MapField, cfg: LocalizeConfig, pts: np.ndarray) -> list[np.ndarray]:
+    """The correlative search's places for the end points `pts` over the whole map (backend/globalsearch.py, Olson
+    2009), each brought to its best (`polish`)."""
+    cands = gs.global_search(sf, pts, cfg.search_keep, cfg.search_apart, math.radians(cfg.search_apart_deg),
+                             cfg.search_fine)
+    return [polish(f, pts, k.pose) for k in cands]
+
+
+def score_places(f: MapField, cfg: LocalizeConfig, poses: np.ndarray, sub: np.ndarray, views: np.ndarray,
+                 z_max: float) -> tuple[np.ndarray, np.ndarray]:
+    """The places' posterior (best first, one place counted once): the likelihood field model over end points a
+    correlation length (2σ_hit) apart, which are about independent where a submap sees each piece of wall from many
+    scans, each ray traced from where it was seen (`views`)."""
+    keep = gs.thin(sub, 2.0 * cfg.sigma_hit)
+    poses, ll = profile_places(f, poses, sub[keep], views[keep], through_floor(cfg, z_max), cfg.through_tol)
+    return _merge(poses, gs.posterior(ll), cfg.search_apart, math.radians(cfg.search_apart_deg))
 
 
 def _merge(poses: np.ndarray, prob: np.ndarray, apart_xy: float, apart_yaw: float) -> tuple[np.ndarray, np.ndarray]:
@@ -190,7 +212,7 @@ def _merge(poses: np.ndarray, prob: np.ndarray, apart_xy: float, apart_yaw: floa
     return poses[keep], np.array(total)
 
 
-def _polish(f: MapField, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
+def polish(f: MapField, pts: np.ndarray, pose: np.ndarray) -> np.ndarray:
     """The search's pose to the map's cell: Gauss–Newton, coarse to fine, without a prior (frontend/matcher.py):
     the likelihood of a wide submap changes over a few centimetres, and the places must be compared at their best."""
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
@@ -208,10 +230,10 @@ def _settle(f: MapField, pts: np.ndarray, pose: np.ndarray, window: float) -> np
     p64 = np.ascontiguousarray(pts, dtype=np.float64)
     best, _ = correlative_search(f.match, f.origin[0], f.origin[1], f.resolution, p64, np.asarray(pose, float), window,
                                  f.resolution, math.radians(1.0), math.radians(0.5), 0.0, 0.0)
-    return _polish(f, p64, best)
+    return polish(f, p64, best)
 
 
-def _profile(f: MapField, poses: np.ndarray, pts: np.ndarray, views: np.ndarray, through: float,
+def profile_places(f: MapField, poses: np.ndarray, pts: np.ndarray, views: np.ndarray, through: float,
              tol: float) -> tuple[np.ndarray, np.ndarray]:
     """Each place's best log-likelihood within a map cell and a degree of it (the profile likelihood): the
     through-wall test of a grazing reading flips over a few centimetres, so places are compared at their best."""

@@ -110,12 +110,14 @@ def test_room_claim_at_a_corner_is_matched_on_the_walls_near_face(tmp_path, loca
     and the pull towards the prediction holds it there (0.15 m off for 8 s on these seeds). The refinement takes
     the readings through the walls as impossible: then the match is pulled towards the pose whose rays pass through
     the fewest walls. Measured: found at 7.7-10.0 / 9.2 s, then 0.017-0.020 / 0.020-0.023 m RMSE, at most 0.041 /
-    0.057 m off (as the front end's reads changed)."""
+    0.057 m off."""
     log, plan = _simulate("room", tmp_path, 50.0, seed=seed)
     r = localized(lambda p: log, plan)
     loc, tr = r.loc, r.m["truth"]["after_convergence"]
     assert loc["converged_s"] is not None and loc["converged_s"] <= 20.0 and not loc["lost"], loc
-    assert tr["position_m"]["rmse"] <= 0.035 and tr["position_m"]["max"] <= 0.08, tr  # the far face: 0.15 m
+    # the goal is 0.05 m; the far face's claim (0.15 m off for 8 s) gave 0.064-0.074 m on these seeds, so the bound
+    # sits between the two, and the largest error stays clear of the far face
+    assert tr["position_m"]["rmse"] <= 0.035 and tr["position_m"]["max"] <= 0.08, tr
     assert tr["heading_deg"]["rmse"] <= 1.0, tr
 
 

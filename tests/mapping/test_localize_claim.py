@@ -6,13 +6,13 @@ claim)."""
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
 
 from kosmap.backend.likelihood_field import map_field
 from kosmap.mapping.localize_claim import ClaimCheck
+from kosmap.mapping.localize_search import z_max_of
 from kosmap.mapping.localize_config import LocalizeConfig
 
 RES = 0.05
@@ -61,7 +61,7 @@ def _scan(data, pose, fov_deg=240.0, beams=683, reach=5.6):
 
 def test_a_scan_mid_corridor_is_no_claim_and_one_near_the_end_wall_is(ward):
     data, f, cfg = ward
-    z_max = math.exp(-f.floor) * cfg.z_rand
+    z_max = z_max_of(f, cfg)
     check = ClaimCheck(f, cfg)
     mid = np.array([12.0, 4.0, 0.0])
     scan = _scan(data, mid)
@@ -71,7 +71,8 @@ def test_a_scan_mid_corridor_is_no_claim_and_one_near_the_end_wall_is(ward):
     # the places one door pitch either way are in the running with the truth
     near = [np.min(np.hypot(at_truth.poses[:, 0] - (mid[0] + dx), at_truth.poses[:, 1] - mid[1])) for dx in (-3, 0, 3)]
     assert max(near) < 0.2, at_truth.poses[:5]
-    assert at_truth.claimed_p < 0.6 and at_look_alike.claimed_p < 0.6
+    # three places as good: about a third each, far from a claim
+    assert at_truth.claimed_p < 0.5 and at_look_alike.claimed_p < 0.5
     end = np.array([21.0, 4.0, 0.0])  # the pillar 1.3 m ahead: a door pitch back, its readings fall in free space
     u = check.test(_scan(data, end), end, z_max)
     assert u.unique and u.claimed_p >= cfg.claim_p
