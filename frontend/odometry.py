@@ -45,7 +45,7 @@ class OdometryConfig(StageConfig):
     min_range: float = param(0.1, lo=0.0, doc="ignore returns nearer than this", unit="m")
     max_range: float = param(30.0, lo=0.0, lo_open=True, doc="ignore returns farther than this", unit="m")
     use_wheel_odometry: bool = param(True, doc="use the log's wheel odometry as the motion prior")
-    deskew: bool = param(True, doc="de-skew a laser scan taken beam by beam (time_increment > 0) with the wheel "
+    deskew: bool = param(True, doc="de-skew a laser scan taken beam by beam (time_increment ≠ 0) with the wheel "
                          "odometry's twist; off for a driver that stamps its scans other than at the first beam")
     resolution: float = param(0.05, lo=0.0, lo_open=True, doc="fine likelihood field cell size", unit="m")
     coarse_resolution: float = param(0.1, lo=0.0, lo_open=True, doc="coarse likelihood field cell size", unit="m")
@@ -231,7 +231,7 @@ def scan_to_points(scan, mount: np.ndarray | None, min_range: float, max_range: 
     """End points (N×2, base_link) of the beams of a Scan that returned within [min_range, max_range]
     (and within the scan's own [range_min, range_max)); `mount` = the sensor's pose in base_link. With `twist`
     ((vx, vy), ω: the sensor's velocity in its own frame, `frontend.deskew.sensor_twist`) a scan taken beam by
-    beam (time_increment > 0) is de-skewed."""
+    beam (time_increment ≠ 0) is de-skewed."""
     lo = max(float(min_range), float(scan.range_min))
     hi = min(float(max_range), math.nextafter(float(scan.range_max), 0.0))
     m = np.zeros(3) if mount is None else np.asarray(mount, dtype=float)

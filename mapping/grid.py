@@ -27,7 +27,7 @@ class GridConfig(StageConfig):
 
     section = "grid"
     resolution: float = param(0.05, lo=0.0, lo_open=True, doc="cell size", unit="m")
-    deskew: bool = param(True, doc="de-skew a scan taken beam by beam (time_increment > 0) with the twist between "
+    deskew: bool = param(True, doc="de-skew a scan taken beam by beam (time_increment ≠ 0) with the twist between "
                          "consecutive poses")
     p_hit: float = param(0.7, lo=0.5, hi=1.0, lo_open=True, doc="occupancy probability of a beam's end cell")
     p_miss: float = param(0.4, lo=0.0, hi=0.5, doc="occupancy probability of a cell a beam passes")
@@ -304,7 +304,7 @@ class GridBuilder:
         """Sensor position (2,), beam ends (N×2, map frame), whether each ends in a hit (N,): the beams to trace.
 
         With `twist` ((vx, vy), ω: the sensor's velocity in its frame) and a scan whose beams are taken one
-        after the other (`time_increment` > 0), each beam is moved into the sensor frame at the stamp
+        after the other (`time_increment` ≠ 0), each beam is moved into the sensor frame at the stamp
         (frontend/deskew.py)."""
         sx, sy, sth = _compose(pose, self.mount if mount is None else mount)
         r = np.asarray(scan.ranges, np.float64)
@@ -318,7 +318,7 @@ class GridBuilder:
             no_return |= far
             length = np.where(far, cfg.max_range, length)
         use = hit | (no_return & (length > 0))
-        if twist is not None and scan.time_increment > 0:
+        if twist is not None and abs(scan.time_increment) > 0:
             local = deskew_points(length, scan.angles, scan.time_increment, twist[0], twist[1])[use]
             ends = se2.transform_points((sx, sy, sth), local)
         else:
@@ -329,11 +329,11 @@ class GridBuilder:
     def add(self, pose, scan, mount=None) -> None:
         """Integrate one scan taken at `pose` (x, y, yaw of base_link in the map); `mount` overrides the builder's.
 
-        A scan with `time_increment` > 0 is de-skewed with the twist between the previous scan's pose and this
+        A scan with `time_increment` ≠ 0 is de-skewed with the twist between the previous scan's pose and this
         one (within DESKEW_MAX_GAP_S; the first scan, or one after a gap, is taken as instantaneous)."""
         m = self.mount if mount is None else mount
         twist = None
-        if self.config.deskew and scan.time_increment > 0 and self._last is not None:
+        if self.config.deskew and abs(scan.time_increment) > 0 and self._last is not None:
             dt = (scan.stamp_ns - self._last[0]) * 1e-9
             if 0 < dt <= self.DESKEW_MAX_GAP_S:
                 twist = sensor_twist(self._last[1], pose, dt, m)
@@ -357,7 +357,7 @@ class GridBuilder:
         n = len(scan.ranges)
         if len(self._ex) < n:
             self._ex, self._ey, self._hit = np.empty(n), np.empty(n), np.empty(n, np.bool_)
-        deskew = twist is not None and scan.time_increment > 0
+        deskew = twist is not None and abs(scan.time_increment) > 0
         (vx, vy), w = twist if deskew else ((0.0, 0.0), 0.0)
         clear = float(np.minimum(cfg.no_return_clear, scan.range_max)) if cfg.no_return_clear > 0 else 0.0
         k, cmin, rmin, cmax, rmax = _beam_ends(

@@ -220,11 +220,11 @@ class _FrameGate:
 
 def _read_laser(log, det, cfg, other, progress, total, workers, motion=None):
     from kosmap.frontend.odometry import scan_to_points
-    from kosmap.mapping.slamfeed import laser_mount, upright, upside_down
+    from kosmap.mapping.slamfeed import LaserMount, laser_mount
 
     lc = cfg.localize
     statics: list[Transforms] = []
-    mounts: dict[str, tuple[np.ndarray, bool]] = {}  # frame → (x, y, yaw) in base_link, upside down
+    mounts: dict[str, LaserMount] = {}
     warnings: list[str] = []
     stamps: list[int] = []
     points: list[np.ndarray] = []
@@ -244,12 +244,11 @@ def _read_laser(log, det, cfg, other, progress, total, workers, motion=None):
             last = rec.stamp_ns
             frame = rec.frame_id.lstrip("/") or "base_link"
             if frame not in mounts:  # the lookup `kosmap slam` and `build` make (mapping/slamfeed.py)
-                m, w = laser_mount(statics, "base_link", frame)
-                mounts[frame] = (m, upside_down(statics, "base_link", frame))
-                warnings.extend([w] if w else [])
-            m, flip = mounts[frame]
+                mounts[frame] = laser_mount(statics, "base_link", frame)
+                warnings.extend([mounts[frame].warning] if mounts[frame].warning else [])
+            lm = mounts[frame]
             stamps.append(rec.stamp_ns)
-            points.append(scan_to_points(upright(rec) if flip else rec, m, lc.min_range, lc.max_range).astype(np.float32))
+            points.append(scan_to_points(lm.read(rec), lm.pose, lc.min_range, lc.max_range).astype(np.float32))
             if progress is not None:
                 progress((rec.stamp_ns - first) * 1e-9, total)
     return stamps, points, warnings

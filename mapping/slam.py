@@ -23,8 +23,7 @@ from kosmap.mapping.config import Config
 from kosmap.mapping.jsonsafe import json_safe
 from kosmap.mapping.kosstream import KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
-from kosmap.mapping.slamfeed import (SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns,
-                                     upright, upside_down)
+from kosmap.mapping.slamfeed import SlamFeed, laser_mount, laser_period, no_odom_warning, odometry_columns
 
 
 def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callable[[float, float], None] | None = None,
@@ -60,7 +59,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         period = laser_period(cfg.build.laser_rate, info.count(det.scan), float(info.duration))
         gt: list[np.ndarray] = []
         statics: list[Transforms] = []
-        st = {"base": "base_link", "mount": None, "flip": False, "last": None, "first": None, "now": None}
+        st = {"base": "base_link", "mount": None, "last": None, "first": None, "now": None}
         total = info.duration
         for rec in log.read_batched(topics):
             if rec.stamp_ns and (st["now"] is None or rec.stamp_ns > st["now"]):
@@ -89,12 +88,11 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
                     break
                 if st["last"] is None or rec.stamp_ns - st["last"] >= period - 1_000_000:
                     if st["mount"] is None:
-                        st["mount"], w = laser_mount(statics, st["base"], rec.frame_id)
-                        st["flip"] = upside_down(statics, st["base"], rec.frame_id)
-                        warnings.extend([w] if w else [])
+                        st["mount"] = laser_mount(statics, st["base"], rec.frame_id)
+                        warnings.extend([st["mount"].warning] if st["mount"].warning else [])
                     st["last"] = rec.stamp_ns
-                    rec = upright(rec) if st["flip"] else rec
-                    feed.push_laser(rec, st["mount"])
+                    rec = st["mount"].read(rec)
+                    feed.push_laser(rec, st["mount"].pose)
                     if kept is not None:
                         kept.append(rec)
                 if progress is not None:
@@ -107,7 +105,7 @@ def run_slam(path: str | Path, cfg=None, source: str = "laser", progress: Callab
         raise KosmapError(nothing_reached_slam(path, "laser scan", warnings))
     result.timings["total"] = time.perf_counter() - t_start
     result.timings["read"] = result.timings["total"] - sum(v for k, v in result.timings.items() if k != "total")
-    result.mount = st["mount"] if st["mount"] is not None else np.zeros(3)
+    result.mount = st["mount"].pose if st["mount"] is not None else np.zeros(3)
     result.duration_s = (result.stamps_ns[-1] - result.stamps_ns[0]) * 1e-9 if len(result.stamps_ns) else 0.0
     empty = result.stretches.get("unusable_scans", 0)
     if empty:

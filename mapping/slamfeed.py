@@ -6,9 +6,10 @@ the same order, so the same trajectory.
 
 from __future__ import annotations
 
+import math
 from bisect import bisect_left
 from collections import deque
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -45,31 +46,41 @@ def odom_at(wheel: WheelOdometry, stamp: int) -> np.ndarray | None:
     return q
 
 
-def laser_mount(statics, base: str, frame: str) -> tuple[np.ndarray, str | None]:
-    """The laser's planar pose (x, y, yaw) in the robot's frame from the static transforms: `base` (the wheel
-    odometry's child frame) ← `frame`, else base_link ← `frame`; else at the origin, with a warning to say so."""
+@dataclass(frozen=True)
+class LaserMount:
+    """The laser's planar pose (x, y, yaw) in the robot's frame, and whether it is mounted upside down (its z axis
+    down: it scans the other way round, REP 103, and its scans are read `upright`)."""
+
+    pose: np.ndarray
+    flipped: bool = False
+    warning: str | None = None  # no static transform found: the laser is taken as mounted at the robot's origin
+
+    def read(self, scan: Scan) -> Scan:
+        """The scan as SLAM, the maps and the localizer take it."""
+        return upright(scan) if self.flipped else scan
+
+
+def laser_mount(statics, base: str, frame: str) -> LaserMount:
+    """The laser's mount from the static transforms: `base` (the wheel odometry's child frame) ← `frame`, else
+    base_link ← `frame`; else at the origin, with a warning to say so."""
     tf = lookup_static(statics, base, frame) or lookup_static(statics, "base_link", frame)
     if tf is not None:
-        return np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float), None
+        return LaserMount(np.array([tf.translation[0], tf.translation[1], tf.rpy()[2]], float), tf.matrix()[2, 2] < 0)
     if frame.lstrip("/") in (base, "base_link", ""):
-        return np.zeros(3), None
-    return np.zeros(3), f"no static transform from {base} to {frame}; the laser is taken as mounted at {base}"
-
-
-def upside_down(statics, base: str, frame: str) -> bool:
-    """Whether the laser is mounted upside down (its z axis points down in the robot's frame): it scans the other
-    way round (REP 103), so its scans are read `upright`."""
-    tf = lookup_static(statics, base, frame) or lookup_static(statics, "base_link", frame)
-    return tf is not None and tf.matrix()[2, 2] < 0
+        return LaserMount(np.zeros(3))
+    return LaserMount(np.zeros(3), False,
+                      f"no static transform from {base} to {frame}; the laser is taken as mounted at {base}")
 
 
 def upright(scan: Scan) -> Scan:
     """An upside-down laser's scan as an upright laser with the same planar pose would see it: its beam i bears
     −(angle_min + i·angle_increment), so the beams are reversed and start at −angle_max; their times run backwards
-    from the last beam's, which becomes the stamp (frontend/deskew.py takes beam i at stamp + i·time_increment)."""
-    last = int(round(scan.time_increment * (len(scan.ranges) - 1) * 1e9))
+    from the last beam's, which becomes the stamp (frontend/deskew.py takes beam i at stamp + i·time_increment, a
+    negative increment included)."""
+    ti = float(scan.time_increment) if math.isfinite(scan.time_increment) else 0.0
+    last = int(round(ti * max(len(scan.ranges) - 1, 0) * 1e9))
     return replace(scan, stamp_ns=scan.stamp_ns + last, ranges=scan.ranges[::-1].copy(), angle_min=-scan.angle_max,
-                   intensities=scan.intensities[::-1].copy(), time_increment=-scan.time_increment)
+                   intensities=scan.intensities[::-1].copy(), time_increment=-ti)
 
 
 def laser_period(rate_hz: float, n_scans: int, duration_s: float) -> int:
@@ -129,7 +140,7 @@ class SlamFeed:
 
     def push(self, stamp_ns: int, points: np.ndarray | None, deskew: tuple | None = None) -> None:
         """A scan's points (base_link), or None with `deskew` = (scan, mount, min_range, max_range) for a scan taken
-        beam by beam (time_increment > 0): its points are made once the odometry around its stamp is in,
+        beam by beam (time_increment ≠ 0): its points are made once the odometry around its stamp is in,
         de-skewed with the odometry's twist (frontend/deskew.py) when there is one."""
         self.pending.append((int(stamp_ns), points, deskew))
 
@@ -139,7 +150,7 @@ class SlamFeed:
         o = self.slam.ocfg
         inc = abs(float(scan.angle_increment))
         self.slam.set_sensor(inc * len(scan.ranges), inc)  # the keyframe spacing follows the scanner's FOV
-        if o.deskew and scan.time_increment > 0:  # its points are made when the odometry has caught up
+        if o.deskew and abs(scan.time_increment) > 0:  # its points are made when the odometry has caught up
             self.push(scan.stamp_ns, None, (scan, mount, o.min_range, o.max_range))
         else:
             self.push(scan.stamp_ns, scan_points_base(scan.ranges, scan.angles, scan.valid(), mount, o.min_range,

@@ -134,7 +134,8 @@ def read_laser_log(path: str | Path, cfg: Config | None = None, max_seconds: flo
                     last = rec.stamp_ns
     if not scans:
         raise ValueError(f"{Path(path).name}: no laser scans")
-    mount = laser_mount(statics, base, scans[0].frame_id)[0]
+    lm = laser_mount(statics, base, scans[0].frame_id)
+    mount, scans = lm.pose, [lm.read(s) for s in scans]
     odom = np.full((len(scans), 3), np.nan)
     for i, s in enumerate(scans):
         q = odom_at(wheel, s.stamp_ns) if len(wheel) else None

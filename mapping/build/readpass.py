@@ -35,7 +35,7 @@ from kosmap.mapping.config import Config
 from kosmap.mapping.lasercal import KosLaserCal
 from kosmap.mapping.kosstream import KOS_PREFIX, KosStep, KosStream, ScanRun, run_gravity
 from kosmap.mapping.runtime.framepool import FramePool
-from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns, upright, upside_down
+from kosmap.mapping.slamfeed import laser_mount, laser_period, odometry_columns
 
 STATS_COLUMNS = ("frame", "topic", "stamp", "ineligible_pct", "inlier_pct", "dropped_pct", "outlier_pct", "remaining",
                  "planes", "points", "fspf_ms", "kos_ms")
@@ -150,7 +150,7 @@ class ReadPass:
         self.end: int | None = None
         self.base = "base_link"  # the wheel odometry's child frame
         self.laser_mount: np.ndarray | None = None
-        self.laser_flip = False  # mounted upside down: its scans are read upright (mapping/slamfeed.py)
+        self.laser_read = None  # LaserMount.read: an upside-down laser's scans read upright (mapping/slamfeed.py)
         self.laser_tf: np.ndarray | None = None  # the laser's mount as a matrix, for the fused scan
         self.last_laser: int | None = None
         self.last_fused: int | None = None
@@ -324,11 +324,11 @@ class ReadPass:
         if last is not None and scan.stamp_ns - last < self.laser_period - 1_000_000:
             return
         if self.laser_mount is None:  # the same lookup as `kosmap slam` (mapping/slamfeed.py)
-            self.laser_mount, w = laser_mount(self.statics, self.base, scan.frame_id)
-            self.laser_flip = upside_down(self.statics, self.base, scan.frame_id)
-            self.warnings.extend([w] if w else [])
+            lm = laser_mount(self.statics, self.base, scan.frame_id)
+            self.laser_mount, self.laser_read = lm.pose, lm.read
+            self.warnings.extend([lm.warning] if lm.warning else [])
         read_at = scan.stamp_ns  # the thinning's clock, whichever way the laser is mounted
-        scan = upright(scan) if self.laser_flip else scan
+        scan = self.laser_read(scan)
         spill = self.spill
         if not spill.laser.add(scan.stamp_ns, scan.ranges):
             return
