@@ -1,4 +1,4 @@
-"""Laser SLAM on held-out worlds (tests/worlds/: buildings no setting was chosen on) with lasers unlike the default
+"""Laser SLAM on held-out worlds (tests/worlds/: buildings unlike those the defaults were chosen on) with lasers unlike the default
 Hokuyo UTM-30LX and harsh but ordinary wheel odometry (2 % and 2.8 % wheel radius errors, 0.3°/m heading bias),
 scored against the log's ground truth. The goal is the harsh-odometry target for every building: ATE RMSE ≤ 0.10 m,
 and a self-consistency check that stays quiet on a map that is not bent."""
