@@ -47,7 +47,8 @@ BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by thr
 LOOP_P = 0.01
 # Or when the front end could not follow the scans: a match scoring below 0.6 × its running mean is re-searched over a
 # wide window (frontend/odometry.py, the recovery); a consistent run needs that at a slip or a stall of the odometry,
-# on at most 0.5 % of its matches (Intel, FR079, CSAIL, and five of the six unscored real logs: 0–0.45 %), while
+# on at most 0.5 % of its matches (Intel 0.45 %, FR079 0.06 %, CSAIL 0.5 %, five of the six unscored real logs
+# 0–0.16 %), while
 # consecutive scans that overlap too little to be matched (Örebro's CARMEN log: scans 1–3 m apart) need it on 24 %,
 # and its map is then wrong where no revisit can show it. Ten times the worst of the consistent runs:
 RECOVERY_SHARE = 0.05
@@ -317,7 +318,7 @@ def warning(c: Consistency) -> str | None:
         return None
     if c.recovery_share > RECOVERY_SHARE:
         return (f"the map is likely wrong: the scan matcher had to search a wide window on {100 * c.recovery_share:.0f} % of "
-                f"its matches (a consistent run: under {100 * RECOVERY_SHARE / 10:g} %): consecutive scans overlap too little "
+                f"its matches (a consistent run: at most {100 * RECOVERY_SHARE / 10:g} %): consecutive scans overlap too little "
                 f"to be matched (scans far apart, or odometry that jumps), which a revisit may not show")
     loops = (f"; the solution misses {c.loops_disagreeing} of its {c.loops} loops by more than their covariance allows"
              if c.loops_disagreeing else "")

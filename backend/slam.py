@@ -130,7 +130,6 @@ class Slam:
         o = self.ocfg
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
         self._measure = not held(o)
-        self._set_sensor_fov()
 
     def _set_sensor_fov(self) -> None:
         """What the loop search needs of the sensor (backend/loops.py LoopCloser): its field of view."""

@@ -445,7 +445,7 @@ def _moving(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 def _refine(f: MapField, cfg: LocalizeConfig, pts: np.ndarray, pred: np.ndarray, step, coarse: bool = True,
             uniform: float | None = None) -> np.ndarray:
     """Gauss–Newton of the scan against the map's field from `pred`, pulled towards it: refine_prior_along along the
-    direction of travel (refine_prior_xy by default), refine_prior_xy across it. `coarse`: from the
+    direction of travel (refine_prior_xy when turning in place), refine_prior_xy across it. `coarse`: from the
     filter's pose, a correlative search first, then the pose whose rays pass through the fewest walls; from the
     track's own prediction, which the odometry of one step hardly moves, directly; both at the fine levels only
     (2σ, σ), so that furniture the map lacks has less pull. `uniform`: this weight in every direction instead."""

@@ -148,7 +148,9 @@ def consistency_text(c: dict) -> str:
     loops = f", {c['loops_disagreeing']}/{c['loops']} loops missed" if c.get("loops") else ""
     unsure = (f", the scan matcher re-searched {100 * c['recovery_share']:.0f} % of its matches"
               if c.get("recovery_share", 0.0) > RECOVERY_SHARE else "")
-    verdict = ": likely bent" if c.get("bent") else (": too few revisits to tell" if c.get("too_few") else "")
+    wrong = c.get("bent") and c.get("recovery_share", 0.0) > RECOVERY_SHARE  # the front end could not follow
+    verdict = (": likely wrong" if wrong else ": likely bent" if c.get("bent") else
+               ": too few revisits to tell" if c.get("too_few") else "")
     return head + loops + unsure + verdict
 
 

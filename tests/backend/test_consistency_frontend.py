@@ -35,6 +35,7 @@ def test_a_front_end_that_re_searches_often_makes_the_map_likely_wrong():
 def test_real_logs_front_end_recoveries(tmp_path, folder, file, wrong):
     import numpy as np
 
+    from kosmap.mapping.report import consistency_text
     from kosmap.mapping.slam import run_slam
     from kosmap.tools.laserimport import import_log
     from tests.conftest import require_data
@@ -46,8 +47,9 @@ def test_real_logs_front_end_recoveries(tmp_path, folder, file, wrong):
     share = r.consistency["recovery_share"]
     assert r.consistency["bent"] is wrong and (share > RECOVERY_SHARE) is wrong, (share, r.consistency)
     if wrong:
-        # measured 0.24; the wheels come back to within 2.2 m of the start (the log's own loop), SLAM ends 36 m away
-        assert share > 0.15, share
+        # measured 0.24 (RECOVERY_SHARE is ten times the consistent runs' worst); the wheels come back to within
+        # 2.2 m of the start (the log's own loop), SLAM ends 36 m away
+        assert consistency_text(r.consistency).endswith(": likely wrong"), consistency_text(r.consistency)
         odo, end = r.odom_poses[-1, :2], r.poses[-1, :2]
         assert np.hypot(*odo) < 3.0 and np.hypot(*end) > 10.0, (odo, end)
         assert any("likely wrong" in w for w in r.warnings), r.warnings
