@@ -12,6 +12,15 @@ from numba import njit
 # ---- random numbers: xorshift64 seeded by splitmix64 (fast inside numba, reproducible) --------------------------------
 
 _M64 = (1 << 64) - 1
+_NO_MOMENTS = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@njit(cache=True, inline="always")
+def _moments_plus(s, x, y, z):  # pragma: no cover - compiled
+    """The nine moment sums (Σx, Σy, Σz, Σxx, Σxy, Σxz, Σyy, Σyz, Σzz) with the point (x, y, z) added: a tuple,
+    held in registers by the loops that sum into it."""
+    return (s[0] + x, s[1] + y, s[2] + z, s[3] + x * x, s[4] + x * y, s[5] + x * z, s[6] + y * y, s[7] + y * z,
+            s[8] + z * z)
 
 
 def rng_state(seed: int) -> np.ndarray:
@@ -132,23 +141,13 @@ def _inlier_fit_nb(wx, wy, wz, na, nx, ny, nz, d, eps):
     """
     ox, oy, oz = np.float64(wx[0]), np.float64(wy[0]), np.float64(wz[0])
     cnt = 0
-    sx = sy = sz = sxx = sxy = sxz = syy = syz = szz = 0.0
+    s = _NO_MOMENTS
     for a in range(na):
         x, y, z = np.float64(wx[a]), np.float64(wy[a]), np.float64(wz[a])
         if abs(nx * x + ny * y + nz * z + d) < eps:
-            x -= ox
-            y -= oy
-            z -= oz
             cnt += 1
-            sx += x
-            sy += y
-            sz += z
-            sxx += x * x
-            sxy += x * y
-            sxz += x * z
-            syy += y * y
-            syz += y * z
-            szz += z * z
+            s = _moments_plus(s, x - ox, y - oy, z - oz)
+    sx, sy, sz, sxx, sxy, sxz, syy, syz, szz = s
     if cnt < 3:
         return cnt, nx, ny, nz, d
     mx, my, mz = sx / cnt, sy / cnt, sz / cnt
@@ -354,7 +353,7 @@ def _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, tail, dropped, W, st
     keep = 0
     n_in = 0
     n_tail = 0
-    s0 = s1 = s2 = s3 = s4 = s5 = s6 = s7 = s8 = 0.0
+    s = _NO_MOMENTS
     # the residual in float32, as RANSAC scores (the points are float32; a float64 residual cost a fifth of the pass)
     fx, fy, fz, fd = np.float32(nx), np.float32(ny), np.float32(nz), np.float32(d)
     eps, tail = np.float32(eps), np.float32(tail)
@@ -376,20 +375,11 @@ def _partition_nb(wp, flat, tx, ty, na, nx, ny, nz, d, eps, tail, dropped, W, st
                 out_pts[n_out, 2] = z32
                 out_plane[n_out] = n_pl
                 n_out += 1
-                x, y, z = np.float64(x32), np.float64(y32), np.float64(z32)
-                s0 += x
-                s1 += y
-                s2 += z
-                s3 += x * x
-                s4 += x * y
-                s5 += x * z
-                s6 += y * y
-                s7 += y * z
-                s8 += z * z
+                s = _moments_plus(s, np.float64(x32), np.float64(y32), np.float64(z32))
         else:
             wp[keep] = wp[a]
             keep += 1
-    mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6], mom[7], mom[8] = s0, s1, s2, s3, s4, s5, s6, s7, s8
+    mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6], mom[7], mom[8] = s
     return keep, n_in, n_tail, n_out
 
 
@@ -489,7 +479,7 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
         if not took:
             continue
         n_out += 1
-        s0, s1, s2, s3, s4, s5, s6, s7, s8 = x, y, z, x * x, x * y, x * z, y * y, y * z, z * z
+        s = _moments_plus(_NO_MOMENTS, x, y, z)
         stack_r[0], stack_c[0] = r, c
         top = 1
         while top > 0:  # depth-first flood of plane k through unexamined pixels within ε of it
@@ -511,25 +501,10 @@ def _grow_nb(flat, W, H, tx, ty, eps, st, lbl, stack_r, stack_c, pl_n, pl_d, pl_
                                               out_pts, out_plane, n_out)
                 if took:
                     n_out += 1
-                    s0 += x
-                    s1 += y
-                    s2 += z
-                    s3 += x * x
-                    s4 += x * y
-                    s5 += x * z
-                    s6 += y * y
-                    s7 += y * z
-                    s8 += z * z
+                    s = _moments_plus(s, x, y, z)
                     stack_r[top], stack_c[top] = rq, cq
                     top += 1
         pl_cnt[k] += n_out - start
-        pl_mom[k, 0] += s0
-        pl_mom[k, 1] += s1
-        pl_mom[k, 2] += s2
-        pl_mom[k, 3] += s3
-        pl_mom[k, 4] += s4
-        pl_mom[k, 5] += s5
-        pl_mom[k, 6] += s6
-        pl_mom[k, 7] += s7
-        pl_mom[k, 8] += s8
+        for j in range(9):
+            pl_mom[k, j] += s[j]
     return n_out, n_out - n0
