@@ -163,7 +163,7 @@ def markdown(loo: dict, res: dict, unscored: list[dict], meta: dict) -> str:
             rt = r.get("realtime_factor")
             L.append(f"| {r['log']} | {r['what']} | {r['exit']} | {r.get('scans', '–')} | {r.get('loops', '–')} | "
                      f"{_asked(r.get('loop_search'))} | {_odometry(r.get('odometry_noise'))} | {off} | "
-                     f"{'yes' if c.get('bent') else 'no'} | {f'{rt:.0f}×' if rt else '–'} | {_peer_cells(r.get('yag_slam'))} |")
+                     f"{'yes' if c.get('bent') else 'too few revisits to tell' if c.get('too_few') else 'no'} | {f'{rt:.0f}×' if rt else '–'} | {_peer_cells(r.get('yag_slam'))} |")
     return "\n".join(L) + "\n"
 
 
