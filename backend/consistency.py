@@ -5,7 +5,8 @@ walls, from the same side), its scan, placed at its solved pose, should lie on t
 puts them beside each other. Per revisiting keyframe the figure is how far its points must move, as one rigid body,
 onto the earlier scans' segments they project onto (two consecutive points of one earlier scan; one damped
 point-to-line ICP step, Censi 2008), for the points within REVISIT_RADIUS of such a segment (where the views
-overlap); over the run the median and 90th percentile, and the worst keyframe's time. Beside it: the loop factors' residuals after the solve (loops the solution disagrees with).
+overlap); over the run the median and 90th percentile, and the worst keyframe's time. Beside it: the loop factors'
+residuals after the solve (loops the solution disagrees with).
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ MIN_POINTS = 20  # a keyframe is a revisit when at least this many of its points
 # tolerances (a stretch of the run placed wrong), by a sign test on their count (revisit_verdict); too few revisits to
 # refute the median are "too few to tell", not a verdict. Measured: good maps of the simulated office (KOS and laser,
 # ATE 0.02–0.09 m) median 0.004–0.04 m, 90 % 0.01–0.08 m, but for one (ATE 0.077 m) whose revisits the truth shows
-# 0.09 m apart, called bent; bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m) median 0.14–0.31 m, 90 % 0.27–0.37
-# m (docs/consistency.md).
+# 0.09 m apart, called bent; bent by odometry alone (loop closure, gyro and wall headings off; ATE 0.12–0.54 m)
+# median 0.14–0.31 m, 90 % 0.27–0.37 m (docs/consistency.md).
 CELL_M = 0.05  # m: the default [grid] resolution, when the run's is not given
 NOISE_CHI2 = 11.34  # χ²₃ at 99 %: the rigid step's three parameters fitted to noise
 BENT_P90_CELLS = 3.0  # the worst tenth: three tolerances (a wall doubled by three grid cells over a stretch)
@@ -48,9 +49,8 @@ LOOP_P = 0.01
 # Or when the front end could not follow the scans: a match scoring below 0.6 × its running mean is re-searched over a
 # wide window (frontend/odometry.py, the recovery); a consistent run needs that at a slip or a stall of the odometry,
 # on at most 0.5 % of its matches (Intel 0.45 %, FR079 0.06 %, CSAIL 0.5 %, five of the six unscored real logs
-# 0–0.16 %), while
-# consecutive scans that overlap too little to be matched (Örebro's CARMEN log: scans 1–3 m apart) need it on 24 %,
-# and its map is then wrong where no revisit can show it. Ten times the worst of the consistent runs:
+# 0–0.16 %), while consecutive scans that overlap too little to be matched (Örebro's CARMEN log: scans 1–3 m apart)
+# need it on 24 %, and its map is then wrong where no revisit can show it. Ten times the worst of the consistent runs:
 RECOVERY_SHARE = 0.05
 LOOP_CHI2 = 9.21  # χ²₂ at 99 %
 # The revisits' verdict needs evidence: a sign test of their count beyond the tolerance (revisit_verdict) at this level,
@@ -196,8 +196,8 @@ def consistency(key_t_s: np.ndarray, key_poses: np.ndarray, key_points: list[np.
 
 def revisit_verdict(ratio: np.ndarray) -> tuple[bool, bool]:
     """Whether the revisits' misfits (each over its tolerance, `ratio`) show a bent map, and whether their count could
-    refute the median (fewer: only a gross bend, the worst-tenth test, can show). A consistent map's revisit is within its tolerance at least half the time and within BENT_P90_CELLS
-    tolerances nine times in ten; the map is bent when the revisits refute either at REVISIT_P (a sign test: the
+    refute the median (fewer: only a gross bend, the worst-tenth test, can show). A consistent map's revisit is within
+    its tolerance at least half the time and within BENT_P90_CELLS tolerances nine times in ten; the map is bent when the revisits refute either at REVISIT_P (a sign test: the
     binomial chance of that many revisits beyond it). The median test needs ⌈log₂(1/REVISIT_P)⌉ = 7 revisits, all off;
     the worst-tenth one 3 revisits, all off by more than BENT_P90_CELLS tolerances. Fewer: too few revisits to tell."""
     n = len(ratio)

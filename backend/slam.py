@@ -131,10 +131,6 @@ class Slam:
         # a front end that holds its pose to the odometry's prediction (the KOS profile) cannot measure its error
         self._measure = not held(o)
 
-    def _set_sensor_fov(self) -> None:
-        """What the loop search needs of the sensor (backend/loops.py LoopCloser): its field of view."""
-        self.loops.sensor_fov = float(self._fov[0])
-
     def add_imu(self, stamp_ns, yaw_rate: float | None = None) -> None:
         """One gyro sample: an Imu record (its z rate; samples without angular velocity are skipped), or a stamp
         and a yaw rate (rad/s about base_link z). Samples may arrive ahead of the scans: a node interval's factor is
@@ -313,7 +309,7 @@ class Slam:
             sp = derived_spacing(MAX_FOV, self._fov[1], res, NODE_CELLS, NODE_FOV_SHARE, noise,
                                  self.ocfg.coarse_resolution)
             self.select.distance, self.select.angle = sp.distance, sp.angle
-        self._set_sensor_fov()
+        self.loops.sensor_fov = float(self._fov[0])  # what the loop search needs of the sensor (backend/loops.py)
 
     def spacing(self) -> dict:
         """The keyframe and node spacing in force, where each comes from ("derived" or "fixed"), and the scan's field

@@ -61,6 +61,12 @@ class Places:
     prob: np.ndarray  # (K,)
     claim: bool  # the best place was claimed on this search
 
+    @classmethod
+    def of(cls, t_s: float, poses: np.ndarray, prob: np.ndarray, claim: bool) -> "Places":
+        """A search's places with posterior ≥ PLACE_MIN_P."""
+        alive = prob >= PLACE_MIN_P
+        return cls(t_s, poses[alive].copy(), prob[alive].copy(), bool(claim))
+
 
 @dataclass
 class LocalizeResult:
@@ -316,9 +322,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
             t_last = inp.stamps[i]
             est, tracked, v = _update(flt, ws, pts, u, tracked)
             if v is not None:
-                alive = v.prob >= PLACE_MIN_P
-                searches.append(Places(float(inp.stamps[i] - inp.stamps[0]), v.poses[alive].copy(), v.prob[alive].copy(),
-                                       bool(v.claim)))
+                searches.append(Places.of(float(inp.stamps[i] - inp.stamps[0]), v.poses, v.prob, v.claim))
             if cfg.mcap_particles:
                 k = min(cfg.mcap_particles, len(flt.parts))
                 sel = mcl.low_variance(flt.w, k, rng)  # drawn by weight: what the posterior looks like
@@ -338,7 +342,7 @@ def localize(inp, f: MapField, cfg: LocalizeConfig, initial_pose: np.ndarray | N
         elif converged and cfg.refine and tracked is not None and inp.has_odom and i > 0:
             # too few end points to match (a camera facing open space beyond its range): the track moved on by the
             # odometry, as the filter's pose is; restarted at the filter's pose it took that pose's error (the
-            # held-out atrium: single scans 0.3-1 m and 7-55 degrees off)
+            # atrium test world: single scans 0.3-1 m and 7-55 degrees off)
             tracked = se2.compose(tracked, se2.between(inp.odom[i - 1], u))
             pose = tracked
         else:
@@ -363,8 +367,7 @@ def _claim_unique(uq: ClaimCheck, flt: _Filter, pts: np.ndarray, pose: np.ndarra
     if len(pts) < uq.cfg.min_points:
         return False
     u = unique_or_reseed(uq, flt, pts, pose)
-    alive = u.prob >= PLACE_MIN_P
-    searches.append(Places(t_s, u.poses[alive].copy(), u.prob[alive].copy(), u.unique))
+    searches.append(Places.of(t_s, u.poses, u.prob, u.unique))
     return u.unique
 
 

@@ -98,9 +98,9 @@ def jump_test(f: MapField, cfg: LocalizeConfig, window, u: np.ndarray | None):
     if window is None or not window.odom or u is None:
         return None
     step = se2.between(u, window.odom[-1])  # from the scan's odometry pose to the window's newest
+    z_max = z_max_of(f, cfg)
 
     def test(track: np.ndarray, mode: np.ndarray) -> bool:
-        z_max = z_max_of(f, cfg)
         at = se2.compose(track, step)
         recent, views = window.submap(cfg.check_m)
         keep = gs.thin(recent, 2.0 * cfg.sigma_hit)
